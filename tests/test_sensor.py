@@ -1,0 +1,26 @@
+import numpy as np
+
+from tactile6d import geometry as g
+from tactile6d import sensor
+
+
+def test_touching_pose_faces_the_surface_and_presses_the_gel():
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(50, 3))
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    rolls = rng.uniform(-np.pi, np.pi, 50)
+    T = sensor.sensor_poses_touching(p, n, rolls, depths=0.0015)
+    assert np.all(g.is_rotation(T[:, :3, :3]))
+    np.testing.assert_allclose(sensor.contact_normals(T), n, atol=1e-12)
+    # the contact point sits 2 mm - depth outside the surface, on the normal through p
+    np.testing.assert_allclose(sensor.contact_points(T), p + 0.0005 * n, atol=1e-12)
+    apex = g.transform_points(T, sensor.GEL_CENTER[None, None, :])[:, 0]
+    np.testing.assert_allclose(np.sum((apex - p) * n, axis=1), -0.0015, atol=1e-12)
+
+
+def test_roll_turns_about_the_normal():
+    p, n = np.zeros(3), np.array([0.0, 0.0, 1.0])
+    T0 = sensor.sensor_poses_touching(p, n, 0.0)
+    T1 = sensor.sensor_poses_touching(p, n, np.pi / 2)
+    np.testing.assert_allclose(T1[:3, 1], T0[:3, 2], atol=1e-12)
