@@ -74,3 +74,21 @@ def require(cfg: DictConfig, key: str):
 def section_to_dict(cfg: DictConfig, key: str) -> dict:
     """A config section as a plain dict (for stamping into artifacts)."""
     return OmegaConf.to_container(require(cfg, key), resolve=True)
+
+
+def parse_stage_args(argv: list[str] | None, description: str, per_object: bool = False):
+    """Common command line of ``python -m stages.<name>``.
+
+    ``[--params params.yaml] [--object NAME] key=value ...``: without ``--params`` the config is
+    composed from ``conf/`` (so group overrides work), with it the composed file is read. Returns
+    ``(args, cfg)``.
+    """
+    import argparse
+
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--params", help="composed params file (DVC passes params.yaml); default: compose conf/")
+    if per_object:
+        parser.add_argument("--object", required=True, help="object name (see conf/objects/)")
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
+    args = parser.parse_args(argv)
+    return args, load_config(args.overrides, args.params)

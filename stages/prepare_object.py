@@ -1,0 +1,89 @@
+"""Stage prepare_object: clean an object's mesh, build its collision geometry and metric points.
+
+Reads: the object's mesh (data directory, or a built-in primitive), config sections ``prepare`` and
+``paths``. Writes ``artifacts/objects/<name>/object.h5`` and ``collision.json`` (how well the collision
+pieces cover the object).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from tactile6d import layout, meshes
+from tactile6d.config import parse_stage_args, section_to_dict
+from tactile6d.data import DataStore, ycb_object_names
+from tactile6d.errors import ConfigError, exit_on_error
+from tactile6d.io import write_artifact, write_json
+from tactile6d.surface import sample_surface_even
+
+
+def load_source(name: str, store: DataStore, scale: float, n_metric_points: int, rng: np.random.Generator):
+    """The raw mesh and the metric points of an object -> (mesh, metric_points (K, 3), source description)."""
+    if meshes.is_primitive(name):
+        mesh = meshes.make_primitive(name)
+        mesh.apply_scale(scale)
+        points, _, _ = sample_surface_even(mesh, n_metric_points, rng)
+        return mesh, points, "built-in primitive"
+    if name not in ycb_object_names():
+        known = ", ".join(list(ycb_object_names()) + list(meshes.PRIMITIVE_NAMES))
+        raise ConfigError(f"unknown object {name!r}; known objects: {known}")
+    mesh_path = store.path(f"ycb/{name}/textured_simple.obj")
+    mesh = meshes.load_mesh_file(mesh_path, scale=scale)
+    points = np.loadtxt(store.path(f"ycb/{name}/points.xyz"), dtype=np.float64).reshape(-1, 3) * scale
+    return mesh, points, str(mesh_path)
+
+
+def collision_pieces(name: str, mesh, cfg, store: DataStore) -> meshes.ConvexPieces:
+    method = cfg.prepare.collision
+    if method == "coacd":
+        return meshes.convex_pieces_coacd(mesh, cfg.prepare.coacd_threshold, cfg.prepare.coacd_max_pieces,
+                                          cfg.prepare.seed)
+    if method == "hull":
+        return [(np.asarray(mesh.convex_hull.vertices), np.asarray(mesh.convex_hull.faces))]
+    if method == "caddeo2023":
+        if meshes.is_primitive(name):
+            raise ConfigError(f"prepare.collision=caddeo2023 has no pieces for the primitive {name!r}")
+        paths = store.collision_piece_paths(name)
+        pieces = meshes.convex_pieces_from_files(paths)
+        return [(v * cfg.prepare.scale, f) for v, f in pieces]
+    raise ConfigError(f"prepare.collision must be coacd, hull or caddeo2023, not {method!r}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
+    name = args.object
+    store = DataStore(cfg.paths)
+    rng = np.random.default_rng(cfg.prepare.seed)
+
+    raw, metric_points, source = load_source(name, store, cfg.prepare.scale, cfg.prepare.n_metric_points, rng)
+    meshes.check_units(raw, name)
+    mesh, report = meshes.clean_mesh(raw)
+    pieces = collision_pieces(name, mesh, cfg, store)
+    fidelity = meshes.collision_fidelity(mesh, pieces, n=200_000, rng=rng)
+    print(
+        f"{name}: {report['faces']} faces (watertight: {report['watertight']}), "
+        f"{fidelity['n_pieces']} collision pieces ({cfg.prepare.collision}): "
+        f"excess {fidelity['excess']:.3f}, missing {fidelity['missing']:.3f} of the volume"
+    )
+
+    artifacts = cfg.paths.artifacts_dir
+    write_artifact(
+        layout.object_file(artifacts, name),
+        "object",
+        {
+            "vertices": np.asarray(mesh.vertices),
+            "faces": np.asarray(mesh.faces),
+            "metric_points": metric_points,
+            **meshes.pack_pieces(pieces),
+        },
+        attrs={"object": name, "source": source, "clean_report": report, "collision_fidelity": fidelity},
+        config={"prepare": section_to_dict(cfg, "prepare")},
+    )
+    write_json(layout.collision_metrics_file(artifacts, name), {"collision": cfg.prepare.collision, **fidelity})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(exit_on_error(main))
