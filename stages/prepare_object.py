@@ -13,10 +13,15 @@ import numpy as np
 
 from tactile6d import layout, meshes
 from tactile6d.config import parse_stage_args, section_to_dict
-from tactile6d.data import DataStore, ycb_object_names
+from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.io import write_artifact, write_json
 from tactile6d.surface import sample_surface_even
+
+
+def ycb_object_names() -> list[str]:
+    """The objects the data manifest has meshes for."""
+    return [g.split(":", 1)[1] for g in group_names() if g.startswith("object:")]
 
 
 def load_source(name: str, store: DataStore, scale: float, n_metric_points: int, rng: np.random.Generator):
@@ -45,8 +50,8 @@ def collision_pieces(name: str, mesh, cfg, store: DataStore) -> meshes.ConvexPie
     if method == "caddeo2023":
         if meshes.is_primitive(name):
             raise ConfigError(f"prepare.collision=caddeo2023 has no pieces for the primitive {name!r}")
-        paths = store.collision_piece_paths(name)
-        pieces = meshes.convex_pieces_from_files(paths)
+        relpaths = [r for r in group_files(f"object:{name}") if "/collision_caddeo2023/" in r]
+        pieces = meshes.convex_pieces_from_files([store.path(r) for r in relpaths])
         return [(v * cfg.prepare.scale, f) for v, f in pieces]
     raise ConfigError(f"prepare.collision must be coacd, hull or caddeo2023, not {method!r}")
 

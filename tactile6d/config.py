@@ -11,12 +11,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import yaml
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from tactile6d.errors import ConfigError
 
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+REPO_ROOT = Path(__file__).resolve().parent.parent
+CONF_DIR = REPO_ROOT / "conf"
 
 
 def compose_config(overrides: list[str] | tuple[str, ...] = (), conf_dir: Path | str = CONF_DIR) -> DictConfig:
@@ -50,7 +52,8 @@ def load_params(params_file: Path | str, overrides: list[str] | tuple[str, ...] 
             key, value = item.split("=", 1)
             if OmegaConf.select(cfg, key, throw_on_missing=False, default="__absent__") == "__absent__":
                 raise ConfigError(f"override {item!r}: no key {key!r} in {path}")
-            OmegaConf.update(cfg, key, OmegaConf.create({"v": value}).v if value else value, merge=True)
+            # values are YAML scalars or lists, as on a Hydra command line: "7" is an int, "null" is None
+            OmegaConf.update(cfg, key, yaml.safe_load(value) if value else value, merge=True)
     except OmegaConfBaseException as exc:
         raise ConfigError(f"bad params file {path}: {' '.join(str(exc).split())}") from exc
     return cfg
@@ -92,3 +95,13 @@ def parse_stage_args(argv: list[str] | None, description: str, per_object: bool 
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     return args, load_config(args.overrides, args.params)
+
+
+def composed_params_yaml(conf_dir: Path | str = CONF_DIR) -> str:
+    """``conf/`` composed with no overrides, as the YAML text of ``params.yaml``."""
+    return OmegaConf.to_yaml(compose_config((), conf_dir), resolve=False)
+
+
+if __name__ == "__main__":
+    # `python -m tactile6d.config > params.yaml` refreshes the committed params file after editing conf/.
+    print(composed_params_yaml(), end="")

@@ -1,0 +1,40 @@
+# Two entry points for a fresh machine with only Python 3.11:
+#   make test       [DATA=path/to/data]   create .venv, install, run the tests
+#   make reproduce  [DATA=path/to/data]   create .venv, install, run the DVC pipeline
+# DATA is a local copy of the third-party data (layout of ../shared/data); without it the pipeline
+# downloads the pinned files into ~/.cache/tactile6d and the tests that need data are skipped.
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(abspath $(VENV))/bin
+export PATH := $(BIN):$(PATH)
+export DVC_NO_ANALYTICS := 1
+ifneq ($(DATA),)
+export TACTILE6D_DATA := $(abspath $(DATA))
+endif
+
+.PHONY: install test reproduce params clean-venv
+
+# torch first and alone: a CPU wheel of 2.13.0 is what the machine has; any other request for torch
+# would pull several GB of CUDA packages.
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet torch==2.13.0
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $@
+
+install: $(VENV)/.installed
+
+test: install
+	$(BIN)/python -m pytest -q
+
+reproduce: install
+	$(BIN)/dvc repro
+
+# Refresh the committed params.yaml after editing conf/ (plain `dvc repro` reads params.yaml).
+params: install
+	$(BIN)/python -m tactile6d.config > params.yaml
+
+clean-venv:
+	rm -rf $(VENV)

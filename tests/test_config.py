@@ -1,0 +1,36 @@
+import pytest
+import yaml
+from omegaconf import OmegaConf
+
+from tactile6d.config import REPO_ROOT, compose_config, load_params, require
+from tactile6d.errors import ConfigError
+
+
+def test_committed_params_yaml_is_the_composed_config():
+    """plain `dvc repro` reads params.yaml: it must not drift from conf/ (refresh: `make params`)."""
+    committed = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+    assert committed == OmegaConf.to_container(compose_config(), resolve=False)
+
+
+def test_group_and_key_overrides():
+    cfg = compose_config(["objects=primitives", "sample.M=50"])
+    assert list(cfg.objects.names)[0] == "prim_box"
+    assert cfg.sample.M == 50
+
+
+def test_unknown_key_is_a_config_error():
+    with pytest.raises(ConfigError, match="sample.nope"):
+        compose_config(["sample.nope=1"])
+    with pytest.raises(ConfigError, match="missing config key 'sample.nope'"):
+        require(compose_config(), "sample.nope")
+
+
+def test_params_file_overrides(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text((REPO_ROOT / "params.yaml").read_text())
+    cfg = load_params(path, ["sample.M=7", "paths.artifacts_dir=/tmp/x"])
+    assert cfg.sample.M == 7 and cfg.paths.artifacts_dir == "/tmp/x"
+    with pytest.raises(ConfigError, match="no key 'sample.nope'"):
+        load_params(path, ["sample.nope=3"])
+    with pytest.raises(ConfigError, match="not found"):
+        load_params(tmp_path / "absent.yaml")

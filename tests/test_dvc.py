@@ -1,0 +1,51 @@
+"""dvc.yaml must list, for each stage, the code it runs: its module and every tactile6d module it
+imports (directly or through other tactile6d modules), so that editing that code re-runs the stage."""
+
+import ast
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def tactile6d_imports(path: Path, seen: set[Path] | None = None) -> set[Path]:
+    """Files of tactile6d imported by ``path``, transitively (module-level and function-level imports)."""
+    seen = set() if seen is None else seen
+    for node in ast.walk(ast.parse(path.read_text())):
+        names = []
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("tactile6d"):
+            names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names if a.name.startswith("tactile6d")]
+        for name in names:
+            rel = Path(*name.split("."))
+            for candidate in (REPO / rel.with_suffix(".py"), REPO / rel / "__init__.py"):
+                if candidate.is_file() and candidate not in seen:
+                    seen.add(candidate)
+                    tactile6d_imports(candidate, seen)
+    return seen
+
+
+def stages():
+    spec = yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"]
+    return [(name, body.get("do", body)) for name, body in spec.items()]
+
+
+@pytest.mark.parametrize("name,stage", stages(), ids=[n for n, _ in stages()])
+def test_code_deps_match_imports(name, stage):
+    module = REPO / "stages" / f"{name}.py"
+    assert module.is_file(), f"stage {name} has no module stages/{name}.py"
+    needed = {str(p.relative_to(REPO)) for p in tactile6d_imports(module)} - {"tactile6d/__init__.py"}
+    needed.add(f"stages/{name}.py")
+    deps = {d for d in stage["deps"] if d.endswith(".py")}
+    assert needed <= deps, f"{name}: code it imports but does not list as deps: {sorted(needed - deps)}"
+    assert deps <= needed, f"{name}: deps it does not import: {sorted(deps - needed)}"
+
+
+def test_no_stage_imports_another():
+    for module in (REPO / "stages").glob("*.py"):
+        for node in ast.walk(ast.parse(module.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                assert not node.module.startswith("stages"), f"{module.name} imports {node.module}"
