@@ -213,7 +213,9 @@ def _faces_surface(samples: SurfaceSamples, points: np.ndarray, normals: np.ndar
     return out
 
 
-def _sensor_contacts_in_object(T_world_object: np.ndarray, T_world_sensors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _sensor_contacts_in_object(
+    T_world_object: np.ndarray, T_world_sensors: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Contact points and approach normals of L sensors in the frame of K object poses: (K, L, 3) each."""
     T_object_world = invert_pose(T_world_object)  # (K, 4, 4)
     points = transform_points(T_object_world, contact_points(T_world_sensors))  # (K, L, 3)
