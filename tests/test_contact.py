@@ -1,5 +1,3 @@
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -122,17 +120,9 @@ def test_batched_matches_single(box):
     assert result["correct"][0] and not result["correct"][1]
 
 
-def _data_dir() -> Path | None:
-    env = os.environ.get("TACTILE6D_DATA")
-    candidates = ([Path(env)] if env else []) + [Path(__file__).resolve().parents[2] / "shared" / "data"]
-    return next((p for p in candidates if (p / "ycb").is_dir()), None)
-
-
 @pytest.fixture(scope="module")
-def sugar_box():
-    data = _data_dir()
-    if data is None:
-        pytest.skip("no data directory (set TACTILE6D_DATA or put the data at ../shared/data)")
+def sugar_box(data_dir):
+    data = data_dir
     mesh = trimesh.load(data / "ycb" / "004_sugar_box" / "textured_simple.obj", force="mesh", process=False)
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
     return data, C.sample_surface(mesh)
