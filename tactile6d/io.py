@@ -192,3 +192,58 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
         Path(tmp_name).unlink(missing_ok=True)
         raise
     return path
+
+
+# --- tactile images and scene folders in the paper's triplet layout ---------------------------------
+
+TACTILE_IMAGE_SHAPE = (320, 240, 3)  # rows (sensor z) x columns (sensor y) x RGB
+
+
+def read_tactile_image(path: str | os.PathLike) -> np.ndarray:
+    """A DIGIT image file -> (320, 240, 3) uint8 RGB. InputError if unreadable or of another size."""
+    import cv2
+
+    from tactile6d.errors import InputError
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(f"{path}: not a readable image")
+    if image.shape != TACTILE_IMAGE_SHAPE:
+        raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, a DIGIT image is 240 wide x 320 high")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def write_tactile_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """(320, 240, 3) uint8 RGB -> PNG file."""
+    import cv2
+
+    cv2.imwrite(str(path), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR))
+
+
+def read_scene_dir(directory: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """A scene folder in the paper's triplet layout -> T_world_sensors (L, 4, 4), images (L, 320, 240, 3).
+
+    The folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor) and
+    ``Image_heatmap_<i>.png`` for i = 0..L-1. InputError names what is missing or inconsistent.
+    """
+    from tactile6d.errors import InputError
+    from tactile6d.geometry import text_to_poses
+
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(f"scene folder {directory} not found")
+    pose_file = directory / "poses_sensors.txt"
+    if not pose_file.is_file():
+        raise InputError(f"{directory}: poses_sensors.txt missing")
+    try:
+        poses = text_to_poses(pose_file.read_text())
+    except ValueError as exc:
+        raise InputError(f"{pose_file}: {exc}") from exc
+    image_files = sorted(directory.glob("Image_heatmap_*.png"), key=lambda p: p.stem)
+    expected = [directory / f"Image_heatmap_{i}.png" for i in range(len(poses))]
+    missing = [p.name for p in expected if not p.is_file()]
+    if missing:
+        raise InputError(f"{directory}: {len(poses)} sensor poses but image(s) {', '.join(missing)} missing")
+    if len(image_files) != len(poses):
+        raise InputError(f"{directory}: {len(image_files)} images but {len(poses)} sensor poses")
+    return poses, np.stack([read_tactile_image(p) for p in expected])

@@ -94,3 +94,58 @@ def test_exception_during_write_cleans_up(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="disk full"):
         write_artifact(tmp_path / "s.h5", "surface", surface_data())
     assert not list(tmp_path.iterdir())
+
+
+def write_scene(folder, n_sensors=3, n_images=3, shape=(320, 240, 3)):
+    from tactile6d.geometry import make_pose, poses_to_text
+    from tactile6d.io import write_tactile_image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    poses = np.stack([make_pose(np.eye(3), [0.01 * i, 0, 0]) for i in range(n_sensors)])
+    (folder / "poses_sensors.txt").write_text(poses_to_text(poses))
+    rng = np.random.default_rng(0)
+    for i in range(n_images):
+        write_tactile_image(folder / f"Image_heatmap_{i}.png", rng.integers(0, 255, shape, dtype=np.uint8))
+    return poses
+
+
+def test_scene_dir_round_trip(tmp_path):
+    from tactile6d.io import read_scene_dir, read_tactile_image, write_tactile_image
+
+    poses = write_scene(tmp_path / "s")
+    T, images = read_scene_dir(tmp_path / "s")
+    np.testing.assert_allclose(T, poses, atol=1e-12)
+    assert images.shape == (3, 320, 240, 3) and images.dtype == np.uint8
+    img = np.zeros((320, 240, 3), np.uint8)
+    img[..., 0] = 200  # pure red stays red (RGB in memory, whatever the file's byte order)
+    write_tactile_image(tmp_path / "red.png", img)
+    assert read_tactile_image(tmp_path / "red.png")[0, 0].tolist() == [200, 0, 0]
+
+
+def test_scene_dir_errors(tmp_path):
+    from tactile6d.errors import InputError
+    from tactile6d.io import read_scene_dir
+
+    with pytest.raises(InputError, match="not found"):
+        read_scene_dir(tmp_path / "absent")
+    write_scene(tmp_path / "few", n_sensors=3, n_images=2)
+    with pytest.raises(InputError, match="Image_heatmap_2.png missing"):
+        read_scene_dir(tmp_path / "few")
+    write_scene(tmp_path / "small", shape=(160, 120, 3))
+    with pytest.raises(InputError, match="240 wide x 320 high"):
+        read_scene_dir(tmp_path / "small")
+    (tmp_path / "nopose").mkdir()
+    with pytest.raises(InputError, match="poses_sensors.txt missing"):
+        read_scene_dir(tmp_path / "nopose")
+    bad = tmp_path / "nan"
+    write_scene(bad)
+    (bad / "poses_sensors.txt").write_text("0 0 0 1 0 0 nan\n" * 3)
+    with pytest.raises(InputError, match="NaN"):
+        read_scene_dir(bad)
+
+
+def test_reads_the_papers_triplets(data_dir):
+    from tactile6d.io import read_scene_dir
+
+    T, images = read_scene_dir(data_dir / "caddeo2023/triplets/004_sugar_box/triplet_1")
+    assert T.shape == (3, 4, 4) and images.shape == (3, 320, 240, 3)
