@@ -297,11 +297,12 @@ class DigitRenderer:
     docstring. max_press (m): deeper presses raise InputError (the object would be inside the body).
     render_step: cast one ray per ``render_step`` x ``render_step`` pixel block and upsample (1 = every
     pixel; 2, the default, is 4x faster and differs from 1 by 0.08 grey levels on average, 4 at the
-    99.9th percentile, on YCB contacts; the mask and depth are then blocky by 2 pixels). force: TACTO's normal force in [0, 100]; it moves the object toward the camera by
-    force / 100 x ``max_deformation``. workers: processes for ``render_many``. strict: raise InputError
-    when the object is inside the sensor body (``inside_body``, or a press deeper than ``max_press``);
-    when False, render what the camera would see, as TACTO does (a database sampled on sharp edges or
-    concave parts has such poses).
+    99.9th percentile, on YCB contacts; the mask and depth are then blocky by 2 pixels). force: TACTO's
+    normal force in [0, 100]; it moves the object toward the camera by force / 100 x ``max_deformation``
+    (0 by default: the shift is negligible in the paper's images). workers: processes for
+    ``render_many``. strict: raise InputError when the object is inside the sensor body (``inside_body``,
+    or a press deeper than ``max_press``); when False, render what the camera would see, as TACTO does
+    (a database sampled on sharp edges or concave parts has such poses).
 
     Not thread-safe; use one renderer per thread. ``close()`` (or ``with``) ends the worker processes.
     """
@@ -326,7 +327,7 @@ class DigitRenderer:
             raise ValueError(f"blur_ksize must be odd and positive, got {blur_ksize}")
         if render_step < 1 or width % render_step or height % render_step:
             raise ValueError(f"render_step {render_step} must divide the image size {width}x{height}")
-        self.width, self.height = int(width), int(height)
+        # The constructor arguments but the background and workers: worker processes rebuild from them.
         self.settings = dict(
             noise_std=float(noise_std),
             blur_ksize=int(blur_ksize),
@@ -336,19 +337,14 @@ class DigitRenderer:
             render_step=int(render_step),
             force=float(force),
             max_deformation=float(max_deformation),
-            width=self.width,
-            height=self.height,
+            width=int(width),
+            height=int(height),
             strict=bool(strict),
         )
-        self.noise_std = float(noise_std)
-        self.blur_ksize = int(blur_ksize)
-        self.diff_scale = float(diff_scale)
-        self.light_intensity = float(light_intensity)
-        self.max_press = float(max_press)
-        self.render_step = int(render_step)
-        self.shift = min(max(float(force), 0.0), 100.0) / 100.0 * float(max_deformation)
+        for key, value in self.settings.items():
+            setattr(self, key, value)
+        self.shift = min(max(self.force, 0.0), 100.0) / 100.0 * self.max_deformation  # m toward the camera
         self.workers = max(1, int(workers))
-        self.strict = bool(strict)
         self.background_bgr = np.asarray(background)
         self.background = _prepare_background(self.background_bgr, self.width, self.height)
 
@@ -406,12 +402,13 @@ class DigitRenderer:
         """(H, W, 3) uint8 RGB: the background plus noise."""
         return self._add_noise(_truncate(self.background), seed)
 
-    def contact(self, arrays: MeshArrays, T_sensor_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def contact(self, mesh: trimesh.Trimesh | MeshArrays, T_sensor_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free difference image and press depth on the ray grid.
 
-        T_sensor_object (4, 4) -> diff (h, w, 3) float32 in 0..255 units, RGB: render minus render without
+        mesh, T_sensor_object (4, 4) -> diff (h, w, 3) float32 in 0..255 units, RGB: render minus render without
         contact (before scaling and blur); depth (h, w) float32 metres. (h, w) = image size / render_step.
         """
+        arrays = mesh_arrays(mesh)
         T = np.asarray(T_sensor_object, dtype=np.float64)
         if self.shift > 0.0:
             # TACTO moves the object along the line from its origin to the camera.
@@ -556,7 +553,7 @@ class DigitRenderer:
                 max_workers=self.workers,
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_worker_init,
-                initargs=(self.background_bgr, {k: v for k, v in self.settings.items()}),
+                initargs=(self.background_bgr, dict(self.settings)),
             )
         return self._pool
 

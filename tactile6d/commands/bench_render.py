@@ -44,12 +44,16 @@ def database_poses(mesh: trimesh.Trimesh, n: int, press_depth: float, roll: str,
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tactile6d bench render", description=__doc__.split("\n")[0])
-    parser.add_argument("--data-dir", type=Path, default=None, help="data directory (default: $TACTILE6D_DATA or ../shared/data)")
+    parser.add_argument(
+        "--data-dir", type=Path, default=None, help="data directory (default: $TACTILE6D_DATA or ../shared/data)"
+    )
     parser.add_argument("--object", default="002_master_chef_can", help="YCB object under <data>/ycb")
     parser.add_argument("-n", type=int, default=200, help="images to time")
     parser.add_argument("--workers", type=int, default=None, help="processes (default: the config's workers)")
     parser.add_argument("--config", type=Path, default=RENDER_CONFIG, help="render config YAML")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override a render config key")
+    parser.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override a render config key"
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 

@@ -81,10 +81,14 @@ def paper_sensors(data_dir: Path) -> list[tuple[str, Path, int, np.ndarray]]:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tactile6d fidelity", description=__doc__.split("\n")[0])
-    parser.add_argument("--data-dir", type=Path, default=None, help="data directory (default: $TACTILE6D_DATA or ../shared/data)")
+    parser.add_argument(
+        "--data-dir", type=Path, default=None, help="data directory (default: $TACTILE6D_DATA or ../shared/data)"
+    )
     parser.add_argument("--out", type=Path, default=Path("artifacts/fidelity/montage.png"), help="montage PNG path")
     parser.add_argument("--config", type=Path, default=RENDER_CONFIG, help="render config YAML")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override a render config key")
+    parser.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override a render config key"
+    )
     parser.add_argument("--montage-rows", type=int, default=6, help="sensors shown in the montage")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the first sensor")
     args = parser.parse_args(argv)
