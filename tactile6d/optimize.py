@@ -277,6 +277,7 @@ def tuples_to_poses(
     gain_t: float = 0.01,
     gain_r: float = 1.0,
     offset: float = 0.2,
+    n_translations: int = 15,
     n_irls: int = 5,
     precision: str = "float32",
 ) -> PoseHypotheses:
@@ -284,7 +285,8 @@ def tuples_to_poses(
 
     points (M, 3) database points (object frame, m), sensor_points (L, 3) sensor contact points (world,
     m), tuples (N, L) int indices into points, solver 'fast' or 'gd', rng draws one uniformly random
-    rotation per tuple. gd uses n_steps, gain_t, gain_r, offset (m), precision; fast uses n_irls.
+    rotation per tuple. gd uses n_steps, gain_t, gain_r, offset (m), the first n_translations (1-15)
+    of ``initial_translations`` and precision; fast uses n_irls.
     """
     tuples = np.asarray(tuples)
     if tuples.ndim != 2 or tuples.shape[0] == 0:
@@ -294,6 +296,8 @@ def tuples_to_poses(
     if solver == "fast":
         return fit_fast(object_points, sensor_points, rotations, n_irls)
     if solver == "gd":
-        translations = initial_translations(sensor_points, offset)
+        if not 1 <= n_translations <= len(TRANSLATION_DIRECTIONS):
+            raise InputError(f"n_translations must be 1..{len(TRANSLATION_DIRECTIONS)}, got {n_translations}")
+        translations = initial_translations(sensor_points, offset)[:n_translations]
         return fit_gd(object_points, sensor_points, rotations, translations, n_steps, gain_t, gain_r, precision)
     raise InputError(f"unknown solver {solver!r} (fast or gd)")
