@@ -5,16 +5,20 @@ pose j into any sensor's body. Near-duplicate poses (translations within ``tol_t
 rotations within ``tol_rotation`` of a better-scored pose) are collapsed, then the ``top_k`` lowest
 scores are returned, best first.
 
-Only the poses that can still enter the top k are scored. Since ``d >= 0``, ``R_j >= E_j``: poses are
-scored in increasing loss, a batch at a time, and scoring stops as soon as the next loss is at least
-the k-th best distinct score so far; no unscored pose can then beat it, nor (coming later in score
-order) hide one of the top k as its duplicate. The result is the same as scoring every pose
-(``rank_poses_brute_force``, checked in the tests), usually for a few hundred penetration queries.
+Only the poses that can still enter the top k are scored (branch and bound). Each pose carries a
+lower bound on its score, at first its loss (depths are >= 0). A batch of the poses with the lowest
+bounds is taken at a time: a pose whose bound came from the loss gets the first (cheapest) depth
+bound function applied, one with the first bound gets the second, and so on; one with all bounds
+gets its exact depths. This stops as soon as no unscored pose's bound is below the k-th best distinct
+score so far: no unscored pose can then beat it, nor (coming later in score order) hide one of the top
+k as its duplicate. The result is the same as scoring every pose (``rank_poses_brute_force``, checked
+in the tests), provided the depth function returns at least each bound (``collision``'s does). Ties
+in score are broken by input position.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,13 +68,15 @@ def rank_poses(
     top_k: int,
     tol_translation: float,
     tol_rotation: float,
-    batch: int = 64,
+    depth_bounds: Sequence[Callable[[np.ndarray], np.ndarray]] = (),
+    batch: int = 256,
 ) -> RankedPoses:
     """The top_k distinct poses by R = E + max_i d_i, scoring only the poses that can make it.
 
     poses (P, 4, 4), losses (P,) m, penetrations: a function (B, 4, 4) -> (B, L) depths in metres
     (e.g. ``functools.partial(collision.poses_to_penetrations, model, T_world_sensor=...)``), top_k,
-    tol_translation m, tol_rotation rad, batch: poses scored per call.
+    tol_translation m, tol_rotation rad, depth_bounds: functions (B, 4, 4) -> (B, L) lower bounds on
+    the depths, cheapest first; batch: poses handled per step.
     """
     poses = np.asarray(poses, dtype=np.float64)
     losses = np.asarray(losses, dtype=np.float64)
@@ -78,20 +84,37 @@ def rank_poses(
         raise InputError(f"need poses (P, 4, 4) and losses (P,) with P >= 1, got {poses.shape}, {losses.shape}")
     if top_k < 1:
         raise InputError(f"top_k must be >= 1, got {top_k}")
-    by_loss = np.argsort(losses, kind="stable")
+    n_levels = len(depth_bounds)
+    key = losses.copy()  # lower bound on each pose's score
+    level = np.zeros(len(losses), dtype=np.int64)  # bounds applied so far; n_levels + 1 = scored
     scored = np.zeros(0, dtype=np.int64)
     depth_rows, scores = [], np.zeros(0)
     kept: list[int] = []
-    for start in range(0, len(by_loss), batch):
-        if len(kept) == top_k and losses[by_loss[start]] >= scores[kept[-1]]:
+    while True:
+        threshold = scores[kept[-1]] if len(kept) == top_k else np.inf
+        open_ = np.flatnonzero((level <= n_levels) & (key < threshold))
+        if open_.size == 0:
             break
-        chunk = by_loss[start : start + batch]
-        depths = np.asarray(penetrations(poses[chunk]), dtype=np.float64)
-        depth_rows.append(depths)
-        scored = np.concatenate([scored, chunk])
-        scores = np.concatenate([scores, losses[chunk] + depths.max(axis=1)])
-        # Positions into `scored`, best score first (ties: lower loss rank first).
-        kept = distinct_in_order(poses[scored], np.argsort(scores, kind="stable"), tol_translation, tol_rotation, top_k)
+        if open_.size > batch:
+            # The batch lowest bounds, ties by input position.
+            open_ = open_[np.lexsort((open_, key[open_]))[:batch]]
+        # Each pose in the batch moves one step: to its next bound, or (all bounds known) to its depths.
+        at = level[open_]
+        for lvl in range(n_levels):
+            chunk = open_[at == lvl]
+            if chunk.size:
+                bound = np.asarray(depth_bounds[lvl](poses[chunk]), dtype=np.float64).max(axis=1)
+                key[chunk] = np.maximum(key[chunk], losses[chunk] + bound)
+                level[chunk] = lvl + 1
+        chunk = open_[at == n_levels]
+        if chunk.size:
+            depths = np.asarray(penetrations(poses[chunk]), dtype=np.float64)
+            level[chunk] = n_levels + 1
+            depth_rows.append(depths)
+            scored = np.concatenate([scored, chunk])
+            scores = np.concatenate([scores, losses[chunk] + depths.max(axis=1)])
+            # Positions into `scored`, best score first, ties by input position.
+            kept = distinct_in_order(poses[scored], np.lexsort((scored, scores)), tol_translation, tol_rotation, top_k)
     depths = np.concatenate(depth_rows)
     return RankedPoses(
         poses=poses[scored[kept]],
@@ -114,8 +137,7 @@ def rank_poses_brute_force(
     """Reference for ``rank_poses``: score every pose, then de-duplicate and take the top k."""
     poses = np.asarray(poses, dtype=np.float64)
     losses = np.asarray(losses, dtype=np.float64)
-    by_loss = np.argsort(losses, kind="stable")
-    depths = np.asarray(penetrations(poses[by_loss]), dtype=np.float64)
-    scores = losses[by_loss] + depths.max(axis=1)
-    kept = distinct_in_order(poses[by_loss], np.argsort(scores, kind="stable"), tol_translation, tol_rotation, top_k)
-    return RankedPoses(poses[by_loss[kept]], scores[kept], losses[by_loss[kept]], depths[kept], by_loss[kept], len(poses))
+    depths = np.asarray(penetrations(poses), dtype=np.float64)
+    scores = losses + depths.max(axis=1)
+    kept = distinct_in_order(poses, np.lexsort((np.arange(len(scores)), scores)), tol_translation, tol_rotation, top_k)
+    return RankedPoses(poses[kept], scores[kept], losses[kept], depths[kept], np.asarray(kept, dtype=np.int64), len(poses))

@@ -66,6 +66,9 @@ def test_depth_matches_the_separating_axis_answer_for_rotated_boxes():
         exact = _sat_depth(R, t, sn.BOX_HALF_EXTENTS, np.full(3, 0.025))
         if 0 < exact <= 0.01:
             errors.append(model.depth(0, g.make_pose(R, t)) - exact)
+        args = (model.pieces, g.make_pose(R, t)[None], np.linalg.inv(g.make_pose(np.eye(3), sn.BOX_CENTER))[None])
+        assert col.poses_to_vertex_depth_bounds(*args)[0, 0] <= exact + 1e-12
+        assert col.poses_to_box_depth_bounds(*args)[0, 0] <= exact + 1e-12
     errors = np.abs(errors)
     # EPA is exact to micrometres on most contacts and rarely off by up to ~2 mm (module docstring).
     assert np.median(errors) < 1e-5 and np.quantile(errors, 0.9) < 1e-4
@@ -92,7 +95,11 @@ def test_screening_changes_nothing_and_pieces_combine_by_max():
     # Every piece queried, at the very same relative poses (EPA's answer can move by a fraction of
     # a millimetre with the last bits of a pose).
     naive = np.array([[max(model.depth(k, rel) for k in range(2)) for rel in row] for row in relative])
-    np.testing.assert_array_equal(depths, naive)
+    bounds = np.maximum(
+        col.poses_to_vertex_depth_bounds(model.pieces, T_obj, T_sensors),
+        col.poses_to_box_depth_bounds(model.pieces, T_obj, T_sensors),
+    )
+    np.testing.assert_array_equal(depths, np.maximum(naive, bounds))
     np.testing.assert_allclose(relative, [[g.invert_pose(Tb) @ To for Tb in col.sensor_box_poses(T_sensors)] for To in T_obj], atol=1e-15)
     assert np.sum(depths[:, 0] > 0) > 10
 
@@ -155,9 +162,13 @@ def test_lazy_ranking_equals_scoring_everything():
         return col.poses_to_penetrations(model, T, T_sensors)
 
     n_scored = []
-    for top_k, tol_t, tol_r in [(5, 0.005, np.radians(5)), (1, 0.0, 0.0), (12, 0.01, 0.2)]:
+    bounds = [
+        functools.partial(col.poses_to_vertex_depth_bounds, model.pieces, T_world_sensor=T_sensors),
+        functools.partial(col.poses_to_box_depth_bounds, model.pieces, T_world_sensor=T_sensors),
+    ]
+    for top_k, tol_t, tol_r, lb in [(5, 0.005, np.radians(5), ()), (1, 0.0, 0.0, ()), (12, 0.01, 0.2, ()), (5, 0.005, 0.1, bounds)]:
         calls.clear()
-        lazy = rk.rank_poses(poses, losses, score, top_k, tol_t, tol_r, batch=16)
+        lazy = rk.rank_poses(poses, losses, score, top_k, tol_t, tol_r, depth_bounds=lb, batch=16)
         assert lazy.n_scored == sum(calls)
         full = rk.rank_poses_brute_force(poses, losses, score, top_k, tol_t, tol_r)
         np.testing.assert_array_equal(lazy.index, full.index)
@@ -165,7 +176,7 @@ def test_lazy_ranking_equals_scoring_everything():
         np.testing.assert_array_equal(lazy.penetrations, full.penetrations)
         assert np.all(np.diff(lazy.scores) >= 0) and len(lazy.index) == top_k
         n_scored.append(lazy.n_scored)
-    assert n_scored[0] < n and n_scored[1] < n
+    assert n_scored[0] < n and n_scored[1] < n and n_scored[3] < n
 
 
 def test_near_duplicates_collapse():
