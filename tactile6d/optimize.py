@@ -25,6 +25,16 @@ rotation that aligns R0 (p_2 - p_1) with s_2 - s_1, centre the residuals, E = | 
 keeps its role: one hypothesis per tuple, spread over the rotations the contacts allow.
 
 Both return ``PoseHypotheses``: poses (P, 4, 4) float64, losses (P,) m, tuple_index (P,).
+
+Measured (synthetic: points on a 10 x 6 x 16 cm box, random poses, correspondences with 1-3 mm noise,
+40 scenes per L; median of the best hypothesis' loss / translation error / rotation error):
+L = 3: fast 0.93 mm / 1.6 mm / 2.3 deg, gd 5.3 mm / 5.0 mm / 3.0 deg; L = 4: fast 1.0 / 1.1 / 1.4,
+gd 5.5 / 4.7 / 2.2; L = 1, 2 (pose not identifiable): fast at the loss's lower bound, gd 1.8 and
+4.1 mm above it. The fast loss was <= the gd loss in every scene, hence the default. With exact
+correspondences and a start near the answer, gd ends in a limit cycle about 5 mm / 0.7 deg wide, in
+float32 and float64 alike: the gradient of a plain distance has unit norm, so each step moves t by
+up to gain_t (1 cm). Time on the shared 2-core machine: fast, 5000 tuples, 5 IRLS steps, ~0.1 s;
+gd, 47160 poses x 700 steps, 14-16 s (1 or 2 JAX CPU devices: no gain under that load).
 """
 
 from __future__ import annotations

@@ -22,6 +22,9 @@ and ``DistanceSelection.capped`` says so.
 
 Step 8, the baseline, is the same with Omega_i = all M points: ``all_points_omegas``.
 
+Measured (2-core machine shared with other jobs, load average 7-8; M = 2000 YCB surface points, L = 3,
+N = 5000): |Omega_i| ~ 300: 0.03-0.06 s; baseline, 8e9 triples: 0.34-0.72 s, peak RSS ~270 MB.
+
 Units: metres for points and thresholds, radians for latent angles.
 """
 
@@ -36,9 +39,6 @@ from scipy.spatial.distance import cdist
 
 from tactile6d.errors import InputError
 
-# Relative slack on the pruning bound, so that rounding in the running sums can never drop a tuple
-# that the exact recomputation would keep.
-_BOUND_SLACK = 1e-9
 # How many candidate extensions one vectorised step of the join handles (memory: ~50 bytes each).
 _JOIN_CHUNK = 1 << 21
 
