@@ -1,0 +1,200 @@
+import io
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactile6d import geometry as g
+from tactile6d import optimize as opt
+from tactile6d.errors import InputError
+
+HALF = np.array([0.05, 0.03, 0.08])  # a 10 x 6 x 16 cm box, the size of a YCB object
+
+
+def _scene(rng, n_sensors, noise=0.0):
+    """Points on the box (object frame), a random true pose, the sensor points it puts in the world."""
+    p = rng.uniform(-HALF, HALF, (n_sensors, 3))
+    axis = rng.integers(0, 3, n_sensors)
+    p[np.arange(n_sensors), axis] = np.where(rng.random(n_sensors) < 0.5, -1, 1) * HALF[axis]
+    T = g.make_pose(g.random_rotations(1, rng)[0], rng.uniform(-0.3, 0.3, 3))
+    return p + rng.normal(scale=noise, size=p.shape), g.transform_points(T, p), T
+
+
+def _errors(pose, T):
+    return np.linalg.norm(pose[:3, 3] - T[:3, 3]), np.degrees(g.rotation_angle(pose[:3, :3], T[:3, :3]))
+
+
+def test_initial_translations_are_the_centroid_faces_and_corners():
+    s = np.array([[0.0, 0, 0], [0.1, 0, 0], [0, 0.1, 0.3]])
+    t = opt.initial_translations(s, 0.2)
+    assert t.shape == (15, 3)
+    np.testing.assert_allclose(t[0], s.mean(0))
+    d = np.linalg.norm(t - s.mean(0), axis=1)
+    np.testing.assert_allclose(d[1:7], 0.2)
+    np.testing.assert_allclose(d[7:], 0.2 * np.sqrt(3))
+    assert len({tuple(np.round(v, 9)) for v in t}) == 15
+
+
+def test_loss_matches_a_per_pose_loop():
+    rng = np.random.default_rng(0)
+    poses = g.make_pose(g.random_rotations(5, rng), rng.normal(size=(5, 3)))
+    p, s = rng.normal(size=(5, 3, 3)), rng.normal(size=(3, 3))
+    naive = [np.mean([np.linalg.norm(s[i] - (T[:3, :3] @ q[i] + T[:3, 3])) for i in range(3)]) for T, q in zip(poses, p)]
+    np.testing.assert_allclose(opt.poses_to_losses(poses, p, s), naive, rtol=1e-12)
+
+
+@pytest.mark.parametrize("n_sensors", [3, 4, 6])
+def test_fast_solver_recovers_a_random_pose_from_exact_correspondences(n_sensors):
+    rng = np.random.default_rng(n_sensors)
+    for _ in range(10):
+        p, s, T = _scene(rng, n_sensors)
+        fit = opt.fit_fast(p[None], s, g.random_rotations(1, rng), n_irls=5)
+        dt, dr = _errors(fit.poses[0], T)
+        assert dt < 1e-3 and dr < 0.1
+        assert fit.losses[0] < 1e-9
+
+
+def test_weighted_kabsch_matches_brute_force_weighted_least_squares():
+    rng = np.random.default_rng(1)
+    p, s, _ = _scene(rng, 5, noise=0.003)
+    w = rng.uniform(0.1, 2.0, (1, 5))
+    T = opt.weighted_kabsch(p[None], s, w)[0]
+
+    def cost(pose):
+        return np.sum(w[0] * np.sum((s - g.transform_points(pose, p)) ** 2, axis=1))
+
+    # No small perturbation of the closed-form answer does better.
+    for _ in range(200):
+        dT = g.se3_exp(rng.normal(scale=1e-3, size=6))
+        assert cost(T @ dT) >= cost(T) - 1e-15
+
+
+def test_irls_lowers_the_plain_distance_loss_to_a_local_minimum():
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        p, s, _ = _scene(rng, 3, noise=0.003)
+        kabsch = opt.fit_fast(p[None], s, np.eye(3)[None], n_irls=0)
+        irls = opt.fit_fast(p[None], s, np.eye(3)[None], n_irls=50)
+        assert irls.losses[0] <= kabsch.losses[0] + 1e-12
+        around = g.se3_exp(rng.normal(scale=2e-4, size=(300, 6))) @ irls.poses[0]
+        losses = opt.poses_to_losses(around, np.repeat(p[None], 300, 0), s)
+        assert losses.min() >= irls.losses[0] - 2e-7  # within what 50 steps of IRLS leave
+
+
+def test_two_sensors_reach_the_lower_bound_nearest_the_random_rotation():
+    rng = np.random.default_rng(3)
+    p, s, _ = _scene(rng, 2, noise=0.003)
+    R0 = g.random_rotations(50, rng)
+    fit = opt.fit_fast(np.repeat(p[None], 50, 0), s, R0, n_irls=5)
+    bound = abs(np.linalg.norm(s[1] - s[0]) - np.linalg.norm(p[1] - p[0])) / 2
+    np.testing.assert_allclose(fit.losses, bound, atol=1e-12)
+    # The correction is the angle between R0 (p2 - p1) and s2 - s1, no more.
+    u = np.einsum("nab,b->na", R0, p[1] - p[0])
+    v = s[1] - s[0]
+    need = np.arccos(np.clip(u @ v / np.linalg.norm(u, axis=1) / np.linalg.norm(v), -1, 1))
+    np.testing.assert_allclose(g.rotation_angle(R0, fit.poses[:, :3, :3]), need, atol=1e-9)
+    # Different random rotations give different hypotheses (rotations about s2 - s1).
+    assert np.ptp(g.rotation_angle(fit.poses[:1, :3, :3], fit.poses[:, :3, :3])) > 1.0
+
+
+def test_one_sensor_keeps_the_random_rotation_and_touches_exactly():
+    rng = np.random.default_rng(4)
+    p, s, _ = _scene(rng, 1)
+    R0 = g.random_rotations(4, rng)
+    fit = opt.fit_fast(np.repeat(p[None], 4, 0), s, R0, n_irls=5)
+    np.testing.assert_allclose(fit.poses[:, :3, :3], R0)
+    np.testing.assert_allclose(fit.losses, 0, atol=1e-15)
+
+
+def test_gd_step_is_the_gradient_of_the_loss():
+    # One step with unit gains returns xi - dE/dxi: compare with central differences in float64.
+    rng = np.random.default_rng(5)
+    p, s, T = _scene(rng, 3, noise=0.01)
+    R0 = g.random_rotations(1, rng)
+    t0 = T[:3, 3] + rng.normal(scale=0.02, size=3)
+    xi0 = np.concatenate([t0, g.rotmat_to_rotvec(R0[0])])
+    fit = opt.fit_gd(p[None], s, R0, t0[None], 1, 1.0, 1.0, precision="float64")
+    grad = xi0 - g.pose_to_xi(fit.poses[0])
+
+    def loss(xi):
+        return opt.poses_to_losses(g.xi_to_pose(xi)[None], p[None], s)[0]
+
+    h = 1e-6
+    numeric = [(loss(xi0 + h * e) - loss(xi0 - h * e)) / (2 * h) for e in np.eye(6)]
+    np.testing.assert_allclose(grad, numeric, atol=1e-7)
+
+
+def test_gd_converges_with_small_gains_and_cycles_within_a_bound_with_the_papers():
+    # With plain distances every residual's gradient has unit norm, so at the paper's gains
+    # (0.01, 1) GD ends in a limit cycle millimetres wide; smaller gains converge tightly.
+    rng = np.random.default_rng(6)
+    for _ in range(3):
+        p, s, T = _scene(rng, 3)
+        R0 = (g.rotvec_to_rotmat(rng.normal(scale=0.03, size=3)) @ T[:3, :3])[None]
+        t0 = (T[:3, 3] + rng.normal(scale=0.003, size=3))[None]
+        fine = opt.fit_gd(p[None], s, R0, t0, 700, 1e-4, 1e-2)
+        dt, dr = _errors(fine.poses[0], T)
+        assert dt < 1e-3 and dr < 0.1
+        paper = opt.fit_gd(p[None], s, R0, t0, 700, 0.01, 1.0)
+        dt, dr = _errors(paper.poses[0], T)
+        assert dt < 0.012 and dr < 3.0
+
+
+def test_gd_from_the_papers_starts_finds_the_pose_with_exact_correspondences():
+    rng = np.random.default_rng(7)
+    p, s, T = _scene(rng, 3)
+    n = 20  # the same tuple with 20 random rotations, 15 translations each
+    fit = opt.fit_gd(np.repeat(p[None], n, 0), s, g.random_rotations(n, rng), opt.initial_translations(s, 0.2), 700, 0.01, 1.0)
+    assert fit.poses.shape == (15 * n, 4, 4)
+    dt, dr = _errors(fit.poses[np.argmin(fit.losses)], T)
+    assert dt < 0.012 and dr < 3.0
+
+
+def test_tuples_to_poses_shapes_and_tuple_index():
+    rng = np.random.default_rng(8)
+    points = rng.normal(scale=0.05, size=(30, 3))
+    s = points[[1, 2, 3]] + 0.1
+    tuples = np.array([[1, 2, 3], [4, 5, 6], [7, 8, 9], [1, 5, 9]])
+    fast = opt.tuples_to_poses(points, s, tuples, "fast", rng)
+    assert fast.poses.shape == (4, 4, 4) and fast.losses.shape == (4,)
+    np.testing.assert_array_equal(fast.tuple_index, np.arange(4))
+    assert fast.losses[0] < 1e-9
+    gd = opt.tuples_to_poses(points, s, tuples, "gd", rng, n_steps=5)
+    assert gd.poses.shape == (60, 4, 4) and gd.poses.dtype == np.float64
+    np.testing.assert_array_equal(gd.tuple_index, np.tile(np.arange(4), 15))
+    np.testing.assert_allclose(gd.losses, opt.poses_to_losses(gd.poses, points[tuples[gd.tuple_index]], s))
+    with pytest.raises(InputError):
+        opt.tuples_to_poses(points, s, tuples, "newton", rng)
+    with pytest.raises(InputError):
+        opt.tuples_to_poses(points, s, tuples[:, :2], "fast", rng)
+
+
+def test_gd_splits_over_two_cpu_devices_with_the_same_result():
+    # A fresh interpreter, since JAX's device count is fixed once it has run anything.
+    code = textwrap.dedent(
+        """
+        import io, sys
+        import numpy as np
+        from tactile6d import optimize as opt, geometry as g
+        assert opt.use_cpu_devices(2) == 2
+        rng = np.random.default_rng(0)
+        p = rng.normal(scale=0.05, size=(7, 3, 3)); s = p[0] + 0.1
+        R0 = g.random_rotations(7, rng)
+        fit = opt.fit_gd(p, s, R0, opt.initial_translations(s, 0.2), 50, 0.01, 1.0, "float64")
+        buffer = io.BytesIO()
+        np.save(buffer, fit.poses)
+        sys.stdout.buffer.write(buffer.getvalue())
+        """
+    )
+    root = Path(__file__).resolve().parent.parent
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, check=True, env={"PYTHONPATH": str(root), "PATH": ""})
+    sharded = np.load(io.BytesIO(out.stdout))
+    rng = np.random.default_rng(0)
+    p = rng.normal(scale=0.05, size=(7, 3, 3))
+    s = p[0] + 0.1
+    R0 = g.random_rotations(7, rng)
+    single = opt.fit_gd(p, s, R0, opt.initial_translations(s, 0.2), 50, 0.01, 1.0, "float64")
+    np.testing.assert_allclose(sharded, single.poses, atol=1e-9)
