@@ -16,6 +16,7 @@ import numpy as np
 import trimesh
 
 from tactile6d import contact
+from tactile6d.io import Artifact, Schema, register_schema
 from tactile6d.geometry import invert_pose, make_pose, random_rotations, transform_points
 from tactile6d.sensor import BOX_CENTER, BOX_HALF_EXTENTS, contact_normals, contact_points, sensor_poses_touching
 
@@ -46,6 +47,13 @@ class SceneSet:
 
 SCENE_FIELDS = ("names", "objects", "T_world_object", "T_world_sensors", "images", "contact_points",
                 "contact_normals", "contact_types")
+
+register_schema(Schema("scenes", 1, "make_scenes", SCENE_FIELDS))
+
+
+def scene_set_from_artifact(art: Artifact) -> SceneSet:
+    """A SceneSet from a ``scenes`` artifact (``tactile6d.io.read_artifact(path, "scenes")``)."""
+    return SceneSet(**{k: np.asarray(art[k]) for k in SCENE_FIELDS})
 
 
 def concatenate(sets: list[SceneSet]) -> SceneSet:
