@@ -9,6 +9,8 @@ The average row is the mean of the per-object figures.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from tactile6d import contact, metrics
@@ -68,7 +70,8 @@ def summarise(errors: dict[str, np.ndarray]) -> dict[str, float]:
     of the positional error (which has no value for it).
     """
     pos, adi, rot, ok = (np.asarray(errors[key]) for key in ("position", "adi", "adi_rotation", "contact_ok"))
-    with np.errstate(invalid="ignore"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # nanmean of a scene without estimates
         return {
             "pos_err_cm_top1": float(100.0 * np.nanmean(pos[:, 0])),
             "pos_err_cm_top5": float(100.0 * np.nanmean(np.nanmean(pos, axis=1))),
