@@ -45,23 +45,29 @@ METHODS = ("ours", "baseline")
 SOLVERS = ("fast", "gd")
 STEPS = ("encode", "select", "optimize", "rank")
 
-# Artifacts of the per-run stages (layout.run_dir). Ragged per-scene arrays are concatenated over the
-# scenes, with ``offsets`` (S + 1,): scene s owns rows offsets[s]:offsets[s + 1].
+# Artifacts of the per-run stages (layout.run_dir), one row per scene of the set. Ragged per-scene arrays
+# are stacked over the scenes, with ``offsets`` (S + 1,): scene s owns rows offsets[s]:offsets[s + 1].
+# ``failure`` (S,) says why a scene has no estimate ('' when it has one); the sensor poses and the
+# seconds of earlier steps are carried forward so that each stage reads only its predecessor's file.
+_RUN_FIELDS = ("names", "objects", "T_world_sensors", "failure")  # carried through all three
 register_schema(Schema(
     "tuples", 1, "select_tuples",
-    ("names", "objects", "tuples", "errors", "offsets", "angles", "omega_sizes", "delta_h", "widened",
-     "delta_d", "capped", "seconds_encode", "seconds_select"),
+    _RUN_FIELDS + ("tuples", "errors", "offsets", "angles", "omega_sizes", "delta_h", "widened", "delta_d",
+                   "capped", "seconds_encode", "seconds_select"),
 ))
 register_schema(Schema(
     "hypotheses", 1, "optimize",
-    ("names", "objects", "translations", "rotvecs", "losses", "tuple_index", "offsets", "seconds_optimize"),
+    _RUN_FIELDS + ("translations", "rotvecs", "losses", "tuple_index", "offsets", "seconds_encode",
+                   "seconds_select", "seconds_optimize"),
 ))
 register_schema(Schema(
     "ranked", 1, "rank",
-    ("names", "objects", "poses", "scores", "losses", "penetrations", "n_poses", "seconds_encode",
-     "seconds_select", "seconds_optimize", "seconds_rank"),
+    _RUN_FIELDS + ("poses", "scores", "losses", "penetrations", "n_poses", "seconds_encode", "seconds_select",
+                   "seconds_optimize", "seconds_rank"),
 ))
 # Made by stage encode_database: database latents (M, 128), the no-contact latent (128,), angles (M,) rad.
+# Its home is tactile6d.autoencoder (io._SCHEMA_MODULES); registered here too, identically, until that
+# branch lands, so that the estimator can read latents.h5 now. Delete this once autoencoder.py has it.
 register_schema(Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")))
 
 
@@ -389,10 +395,6 @@ class LatentAngleEncoder:
         model, norm, _ = load_checkpoint(path)
         return cls(model, norm, background, latent_nc)
 
-    def with_latent_nc(self, latent_nc: np.ndarray) -> LatentAngleEncoder:
-        """The same model against another object's no-contact latent (no reload)."""
-        return LatentAngleEncoder(self.model, self.norm, self.background, latent_nc)
-
     def __call__(self, images: np.ndarray) -> np.ndarray:
         from tactile6d.autoencoder import encode, latent_angles
 
@@ -573,3 +575,47 @@ def _default_cfg():
     from tactile6d.config import compose_config
 
     return compose_config()
+
+
+# --- the per-run stages' artifacts and command line --------------------------------------------------
+
+
+def stack_ragged(parts: Sequence[np.ndarray], row_shape: tuple[int, ...], dtype) -> tuple[np.ndarray, np.ndarray]:
+    """Per-scene arrays (n_s, *row_shape) -> (sum n_s, *row_shape) and offsets (S + 1,) int64."""
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
+    rows = [np.asarray(p, dtype=dtype).reshape(-1, *row_shape) for p in parts]
+    return (np.concatenate(rows) if rows else np.zeros((0, *row_shape), dtype)), offsets
+
+
+def scene_rows(data: np.ndarray, offsets: np.ndarray, scene: int) -> np.ndarray:
+    """Scene ``scene``'s rows of an array stacked by ``stack_ragged``."""
+    return data[offsets[scene] : offsets[scene + 1]]
+
+# --- the per-run stages' command line ---------------------------------------------------------------
+
+
+def carried(art, keys: Sequence[str]) -> dict[str, np.ndarray]:
+    """Datasets of a predecessor's artifact to write again; strings (read back as objects) -> str arrays."""
+    return {k: np.asarray(art[k], dtype=str) if art[k].dtype == object else art[k] for k in keys}
+
+
+def parse_run_stage_args(argv: list[str] | None, description: str):
+    """Command line of select_tuples, optimize and rank: ``[--params FILE] --scene-set NAME --method
+    ours|baseline key=value ...``. ``--method`` also sets ``select.method`` in the returned config.
+    Returns ``(args, cfg)``.
+    """
+    import argparse
+
+    from omegaconf import OmegaConf
+
+    from tactile6d.config import load_config
+
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--params", help="composed params file (DVC passes params.yaml); default: compose conf/")
+    parser.add_argument("--scene-set", required=True, help="scene set: artifacts/scenes/<name>.h5")
+    parser.add_argument("--method", required=True, choices=METHODS)
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
+    args = parser.parse_args(argv)
+    cfg = load_config(args.overrides, args.params)
+    OmegaConf.update(cfg, "select.method", args.method)
+    return args, cfg

@@ -1,15 +1,19 @@
-"""``tactile6d estimate`` on a scene folder, with artifacts made by the real stages for a primitive."""
+"""``tactile6d estimate`` on a scene folder, and the select_tuples -> optimize -> rank stages on a tiny
+scene set, with artifacts made by the real stages for a primitive; the two must agree."""
 
 import json
 
 import numpy as np
 import pytest
 
-from stages import prepare_object, sample_surface
+from stages import optimize, prepare_object, rank, sample_surface, select_tuples
 from tactile6d import cli
+from tactile6d import estimator as est
 from tactile6d import geometry as g
 from tactile6d import layout
-from tactile6d.io import read_artifact, write_tactile_image
+from tactile6d.config import compose_config
+from tactile6d.io import read_artifact, read_scene_dir, write_artifact, write_tactile_image
+from tactile6d.scenes import SceneSet
 from tactile6d.sensor import sensor_poses_touching
 
 T_TRUE = g.make_pose(g.rotvec_to_rotmat(np.array([0.2, 0.5, -0.4])), [0.1, 0.0, 0.2])
@@ -99,3 +103,46 @@ def test_errors_are_one_line_and_exit_2(capsys, artifacts, scene, change, messag
     code, out, err = run(capsys, *argv)
     assert code == 2 and out == ""
     assert err.startswith("error: ") and err.count("\n") == 1 and message in err
+
+
+def write_scene_set(artifacts, scene_folder, name="tiny"):
+    """Two scenes of prim_box: the scene folder's sensors, and the same sensors moved 1 cm along z."""
+    T, images = read_scene_dir(scene_folder)
+    shifted = T.copy()
+    shifted[:, :3, 3] += [0.0, 0.0, 0.01]
+    scenes = SceneSet(
+        names=np.array(["a", "b"]), objects=np.array(["prim_box", "prim_box"]),
+        T_world_object=np.stack([T_TRUE, T_TRUE]), T_world_sensors=np.stack([T, shifted]),
+        images=np.stack([images, images]), contact_points=np.zeros((2, 3, 3)),
+        contact_normals=np.zeros((2, 3, 3)), contact_types=np.zeros((2, 3), dtype=np.int64),
+    )
+    write_artifact(layout.scenes_file(artifacts, name), "scenes", scenes.as_datasets())
+    return scenes
+
+
+@pytest.mark.parametrize("method", ["baseline", "ours"])
+def test_stages_agree_with_the_online_estimator(request, artifacts, scene, method, monkeypatch):
+    if method == "ours":
+        from test_estimator import write_tiny_autoencoder
+
+        monkeypatch.setenv("TACTILE6D_DATA", str(request.getfixturevalue("data_dir")))
+        write_tiny_autoencoder(artifacts, 500, "prim_box")
+    scenes = write_scene_set(artifacts, scene)
+    argv = ["--scene-set", "tiny", "--method", method, f"paths.artifacts_dir={artifacts}", "select.N=400"]
+    for stage in (select_tuples, optimize, rank):
+        assert stage.main(argv) == 0
+    run = layout.run_dir(artifacts, "tiny", method)
+    tuples = read_artifact(run / "tuples.h5", "tuples")
+    ranked = read_artifact(run / "ranked.h5", "ranked")
+    assert list(ranked["names"]) == ["a", "b"] and list(ranked["failure"]) == ["", ""]
+    assert np.all(ranked["n_poses"] >= 1) and np.all(ranked["seconds_rank"] > 0)
+    assert np.isnan(tuples["angles"]).all() == (method == "baseline")
+
+    cfg = compose_config([f"select.method={method}", "select.N=400"])
+    online = est.Estimator.from_artifacts("prim_box", artifacts, cfg)
+    for s in range(2):
+        result = online.estimate(scenes.T_world_sensors[s], scenes.images[s])
+        np.testing.assert_array_equal(est.scene_rows(tuples["tuples"], tuples["offsets"], s), result.selection.tuples)
+        # the stages store hypotheses in float32: the same best pose to well under a micrometre
+        np.testing.assert_allclose(ranked["poses"][s, 0], result.best, atol=1e-6)
+        np.testing.assert_allclose(ranked["scores"][s, 0], result.scores[0], atol=1e-6)
