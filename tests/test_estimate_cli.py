@@ -146,3 +146,10 @@ def test_stages_agree_with_the_online_estimator(request, artifacts, scene, metho
         # the stages store hypotheses in float32: the same best pose to well under a micrometre
         np.testing.assert_allclose(ranked["poses"][s, 0], result.best, atol=1e-6)
         np.testing.assert_allclose(ranked["scores"][s, 0], result.scores[0], atol=1e-6)
+
+
+def test_bench_without_artifacts_says_so(capsys, tmp_path):
+    code = cli.main(["bench", "estimate", "--artifacts", str(tmp_path), "--object", "004_sugar_box"])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert err.startswith(f"error: no object has its artifacts in {tmp_path}") and "dvc repro" in err
