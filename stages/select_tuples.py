@@ -73,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
         if encoder is not None:
             angles[s] = encoder(est.check_images(scenes.images[s], n_sensors))
         t1 = time.perf_counter()
+        seconds[s, 0] = t1 - t0
         try:
             chosen = est.select(points, db_angles, T, angles[s], settings)
         except InputError as exc:
@@ -81,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             tuples.append(np.zeros((0, n_sensors)))
             errors.append(np.zeros(0))
             continue
-        seconds[s] = t1 - t0, time.perf_counter() - t1
+        seconds[s, 1] = time.perf_counter() - t1
         tuples.append(chosen.tuples)
         errors.append(chosen.errors)
         omega_sizes[s], delta_h[s], widened[s] = chosen.omega_sizes, chosen.delta_h, chosen.widened

@@ -36,7 +36,7 @@ import numpy as np
 
 from tactile6d import collision, layout, ranking, selection
 from tactile6d import optimize as optimization
-from tactile6d.errors import ArtifactError, ConfigError, InputError
+from tactile6d.errors import ArtifactError, ConfigError, DataError, InputError
 from tactile6d.geometry import is_rotation
 from tactile6d.io import TACTILE_IMAGE_SHAPE, Schema, read_artifact, register_schema
 from tactile6d.sensor import contact_points
@@ -369,6 +369,8 @@ def load_background(cfg: Mapping, data_dir: str | Path | None = None) -> np.ndar
     relpath = str(cfg["render"]["background"])
     if data_dir is not None:
         path = Path(data_dir) / relpath
+        if not path.is_file():
+            raise DataError(f"no-contact background {path} not found (render.background under the data directory)")
     else:
         from tactile6d.data import DataStore
 

@@ -153,3 +153,16 @@ def test_bench_without_artifacts_says_so(capsys, tmp_path):
     out, err = capsys.readouterr()
     assert code == 2
     assert err.startswith(f"error: no object has its artifacts in {tmp_path}") and "dvc repro" in err
+
+
+def test_a_scene_that_matches_nothing_is_recorded_as_failed(artifacts, scene):
+    scenes = write_scene_set(artifacts, scene, name="far")
+    scenes.T_world_sensors[1, 0, :3, 3] += [1.0, 0.0, 0.0]  # 1 m away: no pair of box points is that far apart
+    write_artifact(layout.scenes_file(artifacts, "far"), "scenes", scenes.as_datasets())
+    argv = ["--scene-set", "far", "--method", "baseline", f"paths.artifacts_dir={artifacts}", "select.N=400"]
+    for stage in (select_tuples, optimize, rank):
+        assert stage.main(argv) == 0
+    ranked = read_artifact(layout.run_dir(artifacts, "far", "baseline") / "ranked.h5", "ranked")
+    assert ranked["failure"][0] == "" and "no tuple of database points matches" in ranked["failure"][1]
+    assert ranked["n_poses"].tolist()[1] == 0 and np.isnan(ranked["poses"][1]).all()
+    assert ranked["n_poses"][0] >= 1
