@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
 
     all_poses, offsets = est.stack_ragged(poses, (4, 4), np.float64)
     print(f"{args.scene_set}/{args.method}: {offsets[-1]} hypotheses over {len(names)} scenes "
-          f"({settings.solver}), median {np.median(seconds):.3f} s per scene")
+          f"({settings.solver}), median {est.median_or_nan(seconds):.3f} s per scene")
     write_artifact(
         run / "hypotheses.h5",
         "hypotheses",

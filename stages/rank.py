@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
             ranked.poses, ranked.scores, ranked.losses, ranked.penetrations)
 
     print(f"{args.scene_set}/{args.method}: {int((n_poses > 0).sum())} of {n_scenes} scenes ranked, "
-          f"median {np.median(seconds):.3f} s per scene")
+          f"median {est.median_or_nan(seconds):.3f} s per scene")
     write_artifact(
         run / "ranked.h5",
         "ranked",

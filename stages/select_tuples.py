@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     stacked, offsets = est.stack_ragged(tuples, (n_sensors,), np.int32)
     stacked_errors, _ = est.stack_ragged(errors, (), np.float32)
     n_failed = sum(bool(f) for f in failure)
-    print(f"{args.scene_set}/{args.method}: {n_scenes} scenes, median {np.median(np.diff(offsets)):.0f} tuples, "
+    print(f"{args.scene_set}/{args.method}: {n_scenes} scenes, median {est.median_or_nan(np.diff(offsets)):.0f} tuples, "
           f"{int(widened.any(axis=1).sum())} with a widened delta_h, {n_failed} failed")
     write_artifact(
         layout.run_dir(artifacts, args.scene_set, args.method) / "tuples.h5",

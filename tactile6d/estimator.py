@@ -596,6 +596,12 @@ def scene_rows(data: np.ndarray, offsets: np.ndarray, scene: int) -> np.ndarray:
 # --- the per-run stages' command line ---------------------------------------------------------------
 
 
+def median_or_nan(values) -> float:
+    """The median, or NaN for an empty scene set (without NumPy's empty-slice warning)."""
+    values = np.asarray(values, dtype=np.float64)
+    return float(np.median(values)) if values.size else float("nan")
+
+
 def carried(art, keys: Sequence[str]) -> dict[str, np.ndarray]:
     """Datasets of a predecessor's artifact to write again; strings (read back as objects) -> str arrays."""
     return {k: np.asarray(art[k], dtype=str) if art[k].dtype == object else art[k] for k in keys}

@@ -166,3 +166,15 @@ def test_a_scene_that_matches_nothing_is_recorded_as_failed(artifacts, scene):
     assert ranked["failure"][0] == "" and "no tuple of database points matches" in ranked["failure"][1]
     assert ranked["n_poses"].tolist()[1] == 0 and np.isnan(ranked["poses"][1]).all()
     assert ranked["n_poses"][0] >= 1
+
+
+def test_an_empty_scene_set_goes_through(artifacts):
+    empty = SceneSet(np.zeros(0, str), np.zeros(0, str), np.zeros((0, 4, 4)), np.zeros((0, 3, 4, 4)),
+                     np.zeros((0, 3, 320, 240, 3), np.uint8), np.zeros((0, 3, 3)), np.zeros((0, 3, 3)),
+                     np.zeros((0, 3), np.int64))
+    write_artifact(layout.scenes_file(artifacts, "empty"), "scenes", empty.as_datasets())
+    argv = ["--scene-set", "empty", "--method", "baseline", f"paths.artifacts_dir={artifacts}"]
+    for stage in (select_tuples, optimize, rank):
+        assert stage.main(argv) == 0
+    ranked = read_artifact(layout.run_dir(artifacts, "empty", "baseline") / "ranked.h5", "ranked")
+    assert ranked["poses"].shape == (0, 5, 4, 4)
