@@ -91,13 +91,14 @@ def main(argv: list[str] | None = None) -> int:
     stacked, offsets = est.stack_ragged(tuples, (n_sensors,), np.int32)
     stacked_errors, _ = est.stack_ragged(errors, (), np.float32)
     n_failed = sum(bool(f) for f in failure)
-    print(f"{args.scene_set}/{args.method}: {n_scenes} scenes, median {est.median_or_nan(np.diff(offsets)):.0f} tuples, "
-          f"{int(widened.any(axis=1).sum())} with a widened delta_h, {n_failed} failed")
+    print(f"{args.scene_set}/{args.method}: {n_scenes} scenes, median {est.median_or_nan(np.diff(offsets)):.0f} "
+          f"tuples, {int(widened.any(axis=1).sum())} with a widened delta_h, {n_failed} failed")
     write_artifact(
         layout.run_dir(artifacts, args.scene_set, args.method) / "tuples.h5",
         "tuples",
         {
-            "names": np.asarray(scenes.names, dtype=str), "objects": np.asarray(scenes.objects, dtype=str), "T_world_sensors": scenes.T_world_sensors,
+            "names": np.asarray(scenes.names, dtype=str), "objects": np.asarray(scenes.objects, dtype=str),
+            "T_world_sensors": scenes.T_world_sensors,
             "tuples": stacked, "errors": stacked_errors, "offsets": offsets, "angles": angles,
             "omega_sizes": omega_sizes, "delta_h": delta_h, "widened": widened, "delta_d": delta_d,
             "capped": capped, "seconds_encode": seconds[:, 0], "seconds_select": seconds[:, 1],

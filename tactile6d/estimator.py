@@ -198,7 +198,8 @@ def check_images(images, n_sensors: int) -> np.ndarray:
     for i, image in enumerate(images):
         image = np.asarray(image)
         if image.shape != TACTILE_IMAGE_SHAPE:
-            raise InputError(f"image {i} has shape {image.shape}, a DIGIT image is (320, 240, 3): 320 rows x 240 columns x RGB")
+            raise InputError(f"image {i} has shape {image.shape}, a DIGIT image is (320, 240, 3): "
+                             "320 rows x 240 columns x RGB")
         if image.dtype != np.uint8:
             raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8")
     return np.stack([np.asarray(image) for image in images])

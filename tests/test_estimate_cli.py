@@ -35,7 +35,8 @@ def scene(artifacts, tmp_path_factory):
     surface = read_artifact(layout.surface_file(artifacts, "prim_box"), "surface")
     points, normals = surface["points"], surface["normals"]
     picks = [int(np.argmin(np.linalg.norm(points - t, axis=1) + 10 * np.linalg.norm(normals - n, axis=1)))
-             for t, n in [((0.05, 0.01, 0.0), (1, 0, 0)), ((0.0, -0.03, 0.01), (0, -1, 0)), ((0.02, 0.0, 0.02), (0, 0, 1))]]
+             for t, n in [((0.05, 0.01, 0.0), (1, 0, 0)), ((0.0, -0.03, 0.01), (0, -1, 0)),
+                          ((0.02, 0.0, 0.02), (0, 0, 1))]]
     T_world_sensors = T_TRUE @ sensor_poses_touching(points[picks], normals[picks], [0.1, 1.0, -2.0], 0.002)
     folder = tmp_path_factory.mktemp("scene")
     (folder / "poses_sensors.txt").write_text(g.poses_to_text(T_world_sensors))
@@ -63,7 +64,8 @@ def test_prints_the_best_pose_line_then_a_summary(capsys, artifacts, scene):
 
 def test_json_has_the_top_k_poses_scores_and_timings(capsys, artifacts, scene):
     code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
-                         "--top", "3", "--json", "select.method=baseline", "select.N=1000", "select.delta_d_start=0.004")
+                         "--top", "3", "--json", "select.method=baseline", "select.N=1000",
+                         "select.delta_d_start=0.004")
     assert code == 0, err
     result = json.loads(out)
     assert 1 <= len(result["poses"]) <= 3 and np.asarray(result["poses"]).shape[1:] == (4, 4)
