@@ -18,7 +18,6 @@ from tactile6d import estimator as est
 from tactile6d import layout
 from tactile6d.config import section_to_dict
 from tactile6d.errors import exit_on_error
-from tactile6d.geometry import rotmat_to_rotvec
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.optimize import use_cpu_devices
 
@@ -59,9 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         {
             **est.carried(selected, ("names", "objects", "T_world_sensors", "failure", "seconds_encode",
                                        "seconds_select")),
-            "translations": all_poses[:, :3, 3].astype(np.float32),
-            "rotvecs": rotmat_to_rotvec(all_poses[:, :3, :3]).astype(np.float32),
-            "losses": est.stack_ragged(losses, (), np.float32)[0],
+            **est.compact_hypotheses(all_poses, est.stack_ragged(losses, (), np.float64)[0]),
             "tuple_index": est.stack_ragged(tuple_index, (), np.int32)[0],
             "offsets": offsets,
             "seconds_optimize": seconds,

@@ -19,7 +19,6 @@ from tactile6d import layout
 from tactile6d.collision import PenetrationModel
 from tactile6d.config import section_to_dict
 from tactile6d.errors import exit_on_error
-from tactile6d.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.io import read_artifact, write_artifact
 
 
@@ -42,11 +41,10 @@ def main(argv: list[str] | None = None) -> int:
         rows = slice(hyp["offsets"][s], hyp["offsets"][s + 1])
         if rows.start == rows.stop:  # a scene whose selection failed
             continue
-        candidates = make_pose(rotvec_to_rotmat(hyp["rotvecs"][rows].astype(np.float64)),
-                               hyp["translations"][rows].astype(np.float64))
+        candidates, losses_in = est.expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows],
+                                                      hyp["losses"][rows])
         t0 = time.perf_counter()
-        ranked = est.rank(models[objects[s]], T_world_sensors[s], candidates,
-                          hyp["losses"][rows].astype(np.float64), settings)
+        ranked = est.rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings)
         seconds[s] = time.perf_counter() - t0
         n = n_poses[s] = len(ranked.poses)
         poses[s, :n], scores[s, :n], losses[s, :n], penetrations[s, :n] = (

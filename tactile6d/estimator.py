@@ -37,7 +37,7 @@ import numpy as np
 from tactile6d import collision, layout, ranking, selection
 from tactile6d import optimize as optimization
 from tactile6d.errors import ArtifactError, ConfigError, DataError, InputError
-from tactile6d.geometry import is_rotation
+from tactile6d.geometry import is_rotation, make_pose, rotmat_to_rotvec, rotvec_to_rotmat
 from tactile6d.io import TACTILE_IMAGE_SHAPE, Schema, read_artifact, register_schema
 from tactile6d.sensor import contact_points
 
@@ -325,6 +325,28 @@ def rank(
     )
 
 
+def compact_hypotheses(poses: np.ndarray, losses: np.ndarray) -> dict[str, np.ndarray]:
+    """Poses (P, 4, 4) and losses (P,) -> float32 ``translations`` (P, 3) m, ``rotvecs`` (P, 3) rad, ``losses``.
+
+    The form hypotheses.h5 stores. The estimator ranks ``expand_hypotheses(compact_hypotheses(...))``
+    too, so an offline run ranks exactly the poses an online estimate ranks: fcl's penetration depth
+    is not continuous in the pose (EPA stops early on some contacts, see collision.py), so even the
+    ~1e-8 m of float32 rounding could otherwise change a depth, and the ranking, now and then.
+    """
+    return {
+        "translations": np.asarray(poses, dtype=np.float64)[:, :3, 3].astype(np.float32),
+        "rotvecs": rotmat_to_rotvec(np.asarray(poses, dtype=np.float64)[:, :3, :3]).astype(np.float32),
+        "losses": np.asarray(losses).astype(np.float32),
+    }
+
+
+def expand_hypotheses(translations, rotvecs, losses) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of ``compact_hypotheses``: -> poses (P, 4, 4) float64, losses (P,) float64."""
+    R = rotvec_to_rotmat(np.asarray(rotvecs, dtype=np.float64))
+    poses = make_pose(R, np.asarray(translations, dtype=np.float64))
+    return poses, np.asarray(losses, dtype=np.float64)
+
+
 # --- loading one object's artifacts ------------------------------------------------------------------
 
 
@@ -532,7 +554,9 @@ class Estimator:
         return optimize(self.points, check_sensor_poses(T_world_sensors), tuples, self.settings.optimize)
 
     def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray) -> ranking.RankedPoses:
-        """The top-k distinct poses of (P, 4, 4) hypotheses with losses (P,)."""
+        """The top-k distinct poses of (P, 4, 4) hypotheses with losses (P,), rounded first to the form
+        the optimize stage stores (``compact_hypotheses``), so that online and offline rank alike."""
+        poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
         return rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses, self.settings.rank)
 
     def estimate(self, T_world_sensors, images=None) -> Estimate:
@@ -559,7 +583,7 @@ class Estimator:
         seconds["optimize"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        ranked = rank(self.penetration_model, T, hypotheses.poses, hypotheses.losses, self.settings.rank)
+        ranked = self.rank(T, hypotheses.poses, hypotheses.losses)
         seconds["rank"] = time.perf_counter() - t0
         seconds["total"] = time.perf_counter() - start
         return Estimate(

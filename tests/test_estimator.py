@@ -207,10 +207,13 @@ def write_object_artifacts(artifacts: Path, name: str, mesh: trimesh.Trimesh, po
 def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
     """An untrained small autoencoder checkpoint and a latents.h5 whose angles cover [0, pi] (so that any
     image angle has database neighbours): enough to run the 'ours' path end to end."""
+    import torch
+
     from tactile6d import autoencoder as ae
 
     cfg = dict(OmegaConf.to_container(OmegaConf.load(Path(__file__).parent.parent / "conf" / "ae" / "cpu.yaml")))
     cfg.update(input_height=32, input_width=24, channels=[4, 8, 8, 16])
+    torch.manual_seed(0)  # build_model draws its weights from torch's global generator
     model = ae.build_model(cfg)
     ae.save_checkpoint(layout.ae_checkpoint(artifacts), model, ae.Normalisation(32, 24, (10.0, 10.0, 10.0)), cfg, {})
     latents = np.random.default_rng(1).normal(size=(n_points, 128)).astype(np.float32)
