@@ -1,0 +1,114 @@
+"""Stage select_tuples: candidate tuples of database points for every scene of a scene set (DESIGN §1 steps 4, 5, 8).
+
+Reads ``artifacts/scenes/<set>.h5``, each scene object's ``surfaces/<obj>.h5`` and, for method ``ours``,
+its ``latents/<obj>.h5``, the autoencoder checkpoint and the no-contact background (``render.background``);
+config section ``select``. Writes ``artifacts/runs/<set>/<method>/tuples.h5``: per scene the tuples and
+their distance errors (stacked, with offsets), the selection diagnostics, the sensor poses (so the
+later stages need not read the scenes again), seconds spent encoding and selecting, and why a scene
+failed ('' when it did not).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from tactile6d import estimator as est
+from tactile6d import layout
+from tactile6d.autoencoder import load_checkpoint
+from tactile6d.config import section_to_dict
+from tactile6d.errors import InputError, exit_on_error
+from tactile6d.io import read_artifact, write_artifact
+from tactile6d.scenes import scene_set_from_artifact
+
+
+class Database:
+    """Each object's points and latent angles, loaded once; the autoencoder, loaded once (method ours)."""
+
+    def __init__(self, cfg, ours: bool):
+        self.artifacts = cfg.paths.artifacts_dir
+        self.ours = ours
+        if ours:
+            self.model, self.norm, _ = load_checkpoint(layout.ae_checkpoint(self.artifacts))
+            self.background = est.load_background(cfg)
+        self._cache = {}
+
+    def __getitem__(self, name: str):
+        """-> (points (M, 3), database angles (M,) or None, encoder or None)."""
+        if name not in self._cache:
+            points = est.load_surface_points(self.artifacts, name)
+            if self.ours:
+                angles, latent_nc = est.load_database_angles(self.artifacts, name)
+                encoder = est.LatentAngleEncoder(self.model, self.norm, self.background, latent_nc)
+                self._cache[name] = (points, angles, encoder)
+            else:
+                self._cache[name] = (points, None, None)
+        return self._cache[name]
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, cfg = est.parse_run_stage_args(argv, __doc__.splitlines()[0])
+    settings = est.SelectSettings.from_cfg(cfg.select)
+    artifacts = cfg.paths.artifacts_dir
+    scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes"))
+    n_scenes, n_sensors = scenes.T_world_sensors.shape[:2]
+    database = Database(cfg, settings.method == "ours")
+
+    tuples, errors = [], []
+    angles = np.full((n_scenes, n_sensors), np.nan)
+    omega_sizes = np.zeros((n_scenes, n_sensors), dtype=np.int64)
+    delta_h = np.full((n_scenes, n_sensors), np.nan)
+    widened = np.zeros((n_scenes, n_sensors), dtype=bool)
+    delta_d = np.full(n_scenes, np.nan)
+    capped = np.zeros(n_scenes, dtype=bool)
+    seconds = np.zeros((n_scenes, 2))
+    failure = [""] * n_scenes
+    for s in tqdm(range(n_scenes), desc=f"select_tuples {args.scene_set}/{args.method}", unit="scene"):
+        points, db_angles, encoder = database[str(scenes.objects[s])]
+        T = est.check_sensor_poses(scenes.T_world_sensors[s])
+        t0 = time.perf_counter()
+        if encoder is not None:
+            angles[s] = encoder(est.check_images(scenes.images[s], n_sensors))
+        t1 = time.perf_counter()
+        seconds[s, 0] = t1 - t0
+        try:
+            chosen = est.select(points, db_angles, T, angles[s], settings)
+        except InputError as exc:
+            # A scene that matches nothing is a failed estimate, not a failed pipeline.
+            failure[s] = str(exc)
+            tuples.append(np.zeros((0, n_sensors)))
+            errors.append(np.zeros(0))
+            continue
+        seconds[s, 1] = time.perf_counter() - t1
+        tuples.append(chosen.tuples)
+        errors.append(chosen.errors)
+        omega_sizes[s], delta_h[s], widened[s] = chosen.omega_sizes, chosen.delta_h, chosen.widened
+        delta_d[s], capped[s] = chosen.delta_d, chosen.capped
+
+    stacked, offsets = est.stack_ragged(tuples, (n_sensors,), np.int32)
+    stacked_errors, _ = est.stack_ragged(errors, (), np.float32)
+    n_failed = sum(bool(f) for f in failure)
+    print(f"{args.scene_set}/{args.method}: {n_scenes} scenes, median {est.median_or_nan(np.diff(offsets)):.0f} "
+          f"tuples, {int(widened.any(axis=1).sum())} with a widened delta_h, {n_failed} failed")
+    write_artifact(
+        layout.run_dir(artifacts, args.scene_set, args.method) / "tuples.h5",
+        "tuples",
+        {
+            "names": np.asarray(scenes.names, dtype=str), "objects": np.asarray(scenes.objects, dtype=str),
+            "T_world_sensors": scenes.T_world_sensors,
+            "tuples": stacked, "errors": stacked_errors, "offsets": offsets, "angles": angles,
+            "omega_sizes": omega_sizes, "delta_h": delta_h, "widened": widened, "delta_d": delta_d,
+            "capped": capped, "seconds_encode": seconds[:, 0], "seconds_select": seconds[:, 1],
+            "failure": np.asarray(failure, dtype=str),
+        },
+        attrs={"scene_set": args.scene_set, "method": args.method},
+        config={"select": section_to_dict(cfg, "select"), "render": {"background": cfg.render.background}},
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(exit_on_error(main))

@@ -1,0 +1,182 @@
+"""``tactile6d estimate`` on a scene folder, and the select_tuples -> optimize -> rank stages on a tiny
+scene set, with artifacts made by the real stages for a primitive; the two must agree."""
+
+import json
+
+import numpy as np
+import pytest
+
+from stages import optimize, prepare_object, rank, sample_surface, select_tuples
+from tactile6d import cli
+from tactile6d import estimator as est
+from tactile6d import geometry as g
+from tactile6d import layout
+from tactile6d.config import compose_config
+from tactile6d.io import read_artifact, read_scene_dir, write_artifact, write_tactile_image
+from tactile6d.scenes import SceneSet
+from tactile6d.sensor import sensor_poses_touching
+
+T_TRUE = g.make_pose(g.rotvec_to_rotmat(np.array([0.2, 0.5, -0.4])), [0.1, 0.0, 0.2])
+
+
+@pytest.fixture(scope="module")
+def artifacts(tmp_path_factory):
+    """prim_box's object.h5 and surface.h5 (M = 500), made by the stages' own main()."""
+    root = tmp_path_factory.mktemp("artifacts")
+    common = ["--object", "prim_box", f"paths.artifacts_dir={root}"]
+    assert prepare_object.main(common + ["prepare.collision=hull", "prepare.n_metric_points=200"]) == 0
+    assert sample_surface.main(common + ["sample.M=500"]) == 0
+    return root
+
+
+@pytest.fixture(scope="module")
+def scene(artifacts, tmp_path_factory):
+    """A triplet folder: three sensors touching database points on three faces of the box."""
+    surface = read_artifact(layout.surface_file(artifacts, "prim_box"), "surface")
+    points, normals = surface["points"], surface["normals"]
+    picks = [int(np.argmin(np.linalg.norm(points - t, axis=1) + 10 * np.linalg.norm(normals - n, axis=1)))
+             for t, n in [((0.05, 0.01, 0.0), (1, 0, 0)), ((0.0, -0.03, 0.01), (0, -1, 0)),
+                          ((0.02, 0.0, 0.02), (0, 0, 1))]]
+    T_world_sensors = T_TRUE @ sensor_poses_touching(points[picks], normals[picks], [0.1, 1.0, -2.0], 0.002)
+    folder = tmp_path_factory.mktemp("scene")
+    (folder / "poses_sensors.txt").write_text(g.poses_to_text(T_world_sensors))
+    for i in range(3):
+        write_tactile_image(folder / f"Image_heatmap_{i}.png", np.full((320, 240, 3), 100, np.uint8))
+    return folder
+
+
+def run(capsys, *argv):
+    code = cli.main(["estimate", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_prints_the_best_pose_line_then_a_summary(capsys, artifacts, scene):
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         "select.method=baseline", "select.N=1000")
+    assert code == 0, err
+    lines = out.splitlines()
+    best = g.line_to_pose(lines[0])
+    assert g.is_rotation(best[:3, :3])
+    assert any(line.startswith("baseline: |Omega_i| 500, 500, 500") for line in lines)
+    assert any(line.startswith("time: encode") and "total" in line for line in lines)
+
+
+def test_json_has_the_top_k_poses_scores_and_timings(capsys, artifacts, scene):
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         "--top", "3", "--json", "select.method=baseline", "select.N=1000",
+                         "select.delta_d_start=0.004")
+    assert code == 0, err
+    result = json.loads(out)
+    assert 1 <= len(result["poses"]) <= 3 and np.asarray(result["poses"]).shape[1:] == (4, 4)
+    assert len(result["scores"]) == len(result["poses"])
+    assert set(result["seconds"]) == {"encode", "select", "optimize", "rank", "total"}
+    assert result["selection"]["n_tuples"] <= 1000
+    np.testing.assert_allclose(g.line_to_pose(result["best"]), result["poses"][0], atol=1e-9)
+    # the box is symmetric, so only the fit is checked: the best pose puts the sensors on the surface
+    assert result["losses"][0] < 0.003
+
+
+def test_ours_runs_with_a_checkpoint_and_the_data_background(capsys, artifacts, scene, data_dir, monkeypatch):
+    from test_estimator import write_tiny_autoencoder
+
+    write_tiny_autoencoder(artifacts, 500, "prim_box")
+    monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         "select.N=500")
+    assert code == 0, err
+    assert out.splitlines()[1].startswith("method ours, solver fast")
+    assert "latent angles" in out
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [({"--scene": "/nonexistent"}, "scene folder /nonexistent not found"),
+     ({"--object": "prim_sphere"}, "dvc repro sample_surface@prim_sphere"),
+     ({"select.method": "nonsense"}, "select.method must be one of ours, baseline"),
+     ({"select.no_such_key": "1"}, "bad config override")],
+)
+def test_errors_are_one_line_and_exit_2(capsys, artifacts, scene, change, message):
+    options = {"--object": "prim_box", "--scene": str(scene), "--artifacts": str(artifacts)}
+    overrides = {"select.method": "baseline"}
+    for key, value in change.items():
+        (options if key.startswith("--") else overrides)[key] = value
+    argv = [x for kv in options.items() for x in kv] + [f"{k}={v}" for k, v in overrides.items()]
+    code, out, err = run(capsys, *argv)
+    assert code == 2 and out == ""
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err
+
+
+def write_scene_set(artifacts, scene_folder, name="tiny"):
+    """Two scenes of prim_box: the scene folder's sensors, and the same sensors moved 1 cm along z."""
+    T, images = read_scene_dir(scene_folder)
+    shifted = T.copy()
+    shifted[:, :3, 3] += [0.0, 0.0, 0.01]
+    scenes = SceneSet(
+        names=np.array(["a", "b"]), objects=np.array(["prim_box", "prim_box"]),
+        T_world_object=np.stack([T_TRUE, T_TRUE]), T_world_sensors=np.stack([T, shifted]),
+        images=np.stack([images, images]), contact_points=np.zeros((2, 3, 3)),
+        contact_normals=np.zeros((2, 3, 3)), contact_types=np.zeros((2, 3), dtype=np.int64),
+    )
+    write_artifact(layout.scenes_file(artifacts, name), "scenes", scenes.as_datasets())
+    return scenes
+
+
+@pytest.mark.parametrize("method", ["baseline", "ours"])
+def test_stages_agree_with_the_online_estimator(request, artifacts, scene, method, monkeypatch):
+    if method == "ours":
+        from test_estimator import write_tiny_autoencoder
+
+        monkeypatch.setenv("TACTILE6D_DATA", str(request.getfixturevalue("data_dir")))
+        write_tiny_autoencoder(artifacts, 500, "prim_box")
+    scenes = write_scene_set(artifacts, scene)
+    argv = ["--scene-set", "tiny", "--method", method, f"paths.artifacts_dir={artifacts}", "select.N=400"]
+    for stage in (select_tuples, optimize, rank):
+        assert stage.main(argv) == 0
+    run = layout.run_dir(artifacts, "tiny", method)
+    tuples = read_artifact(run / "tuples.h5", "tuples")
+    ranked = read_artifact(run / "ranked.h5", "ranked")
+    assert list(ranked["names"]) == ["a", "b"] and list(ranked["failure"]) == ["", ""]
+    assert np.all(ranked["n_poses"] >= 1) and np.all(ranked["seconds_rank"] > 0)
+    assert np.isnan(tuples["angles"]).all() == (method == "baseline")
+
+    cfg = compose_config([f"select.method={method}", "select.N=400"])
+    online = est.Estimator.from_artifacts("prim_box", artifacts, cfg)
+    for s in range(2):
+        result = online.estimate(scenes.T_world_sensors[s], scenes.images[s])
+        np.testing.assert_array_equal(est.scene_rows(tuples["tuples"], tuples["offsets"], s), result.selection.tuples)
+        n = ranked["n_poses"][s]
+        np.testing.assert_array_equal(ranked["poses"][s, :n], result.poses)
+        np.testing.assert_array_equal(ranked["scores"][s, :n], result.scores)
+
+
+def test_bench_without_artifacts_says_so(capsys, tmp_path):
+    code = cli.main(["bench", "estimate", "--artifacts", str(tmp_path), "--object", "004_sugar_box"])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert err.startswith(f"error: no object has its artifacts in {tmp_path}") and "dvc repro" in err
+
+
+def test_a_scene_that_matches_nothing_is_recorded_as_failed(artifacts, scene):
+    scenes = write_scene_set(artifacts, scene, name="far")
+    scenes.T_world_sensors[1, 0, :3, 3] += [1.0, 0.0, 0.0]  # 1 m away: no pair of box points is that far apart
+    write_artifact(layout.scenes_file(artifacts, "far"), "scenes", scenes.as_datasets())
+    argv = ["--scene-set", "far", "--method", "baseline", f"paths.artifacts_dir={artifacts}", "select.N=400"]
+    for stage in (select_tuples, optimize, rank):
+        assert stage.main(argv) == 0
+    ranked = read_artifact(layout.run_dir(artifacts, "far", "baseline") / "ranked.h5", "ranked")
+    assert ranked["failure"][0] == "" and "no tuple of database points matches" in ranked["failure"][1]
+    assert ranked["n_poses"].tolist()[1] == 0 and np.isnan(ranked["poses"][1]).all()
+    assert ranked["n_poses"][0] >= 1
+
+
+def test_an_empty_scene_set_goes_through(artifacts):
+    empty = SceneSet(np.zeros(0, str), np.zeros(0, str), np.zeros((0, 4, 4)), np.zeros((0, 3, 4, 4)),
+                     np.zeros((0, 3, 320, 240, 3), np.uint8), np.zeros((0, 3, 3)), np.zeros((0, 3, 3)),
+                     np.zeros((0, 3), np.int64))
+    write_artifact(layout.scenes_file(artifacts, "empty"), "scenes", empty.as_datasets())
+    argv = ["--scene-set", "empty", "--method", "baseline", f"paths.artifacts_dir={artifacts}"]
+    for stage in (select_tuples, optimize, rank):
+        assert stage.main(argv) == 0
+    ranked = read_artifact(layout.run_dir(artifacts, "empty", "baseline") / "ranked.h5", "ranked")
+    assert ranked["poses"].shape == (0, 5, 4, 4)

@@ -1,0 +1,258 @@
+"""The online estimator on synthetic objects: recovery, diagnostics, input checks, artifact loading."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from omegaconf import OmegaConf
+
+from tactile6d import estimator as est
+from tactile6d import geometry as g
+from tactile6d import layout
+from tactile6d.config import compose_config
+from tactile6d.errors import ArtifactError, InputError
+from tactile6d.io import write_artifact
+from tactile6d.meshes import pack_pieces
+from tactile6d.sensor import sensor_poses_touching
+from tactile6d.surface import sample_surface_even
+
+HALF = np.array([0.05, 0.03, 0.08])  # a 10 x 6 x 16 cm box ...
+CUTS = np.array([0.03, 0.015, 0.05])  # ... with its (+, +, +) corner cut off unevenly: no symmetry left
+T_TRUE = g.make_pose(g.rotvec_to_rotmat(np.array([0.3, -1.1, 0.7])), [0.1, 0.0, 0.2])
+
+
+def cut_box() -> trimesh.Trimesh:
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float) * HALF
+    corners = corners[~np.all(corners > 0, axis=1)]
+    cut = [HALF - np.eye(3)[a] * CUTS[a] for a in range(3)]
+    return trimesh.convex.convex_hull(np.concatenate([corners, cut]))
+
+
+@pytest.fixture(scope="module")
+def world():
+    """The cut box's database (800 points, random latent angles) and three sensors touching three
+    database points on the -x, -y and -z faces (normals spanning 3-D: the pose is determined)."""
+    mesh = cut_box()
+    rng = np.random.default_rng(0)
+    points, normals, _ = sample_surface_even(mesh, 800, rng)
+    db_angles = rng.uniform(0.0, 0.6, len(points))
+    targets = np.array([[-HALF[0], 0.01, -0.02], [0.0, -HALF[1], 0.03], [-0.02, 0.0, -HALF[2]]])
+    idx = np.array([np.argmin(np.linalg.norm(points - t, axis=1)) for t in targets])
+    # depth 2 mm puts the sensor's contact point exactly on the surface point: exact correspondences
+    T_object_sensors = sensor_poses_touching(points[idx], normals[idx], rng.uniform(-np.pi, np.pi, 3), 0.002)
+    return {
+        "mesh": mesh,
+        "points": points,
+        "db_angles": db_angles,
+        "idx": idx,
+        "T_world_sensors": T_TRUE @ T_object_sensors,
+        "images": np.zeros((3, 320, 240, 3), dtype=np.uint8),
+    }
+
+
+def settings(**overrides):
+    """conf/'s select/optimize/rank sections with ``section.key=value`` overrides."""
+    return est.Settings.from_cfg(compose_config([f"{k}={v}" for k, v in overrides.items()]))
+
+
+def make_estimator(world, angles=None, **overrides):
+    true_angles = world["db_angles"][world["idx"]] if angles is None else angles
+    return est.Estimator(
+        world["points"],
+        [world["mesh"].vertices],
+        world["db_angles"],
+        encoder=lambda images: true_angles[: len(images)],
+        settings=settings(**overrides),
+    )
+
+
+def pose_errors(T, T_ref):
+    return np.linalg.norm(T[:3, 3] - T_ref[:3, 3]), np.degrees(g.rotation_angle(T[:3, :3], T_ref[:3, :3]))
+
+
+def test_ours_recovers_the_true_pose_as_the_best(world):
+    result = make_estimator(world).estimate(world["T_world_sensors"], world["images"])
+    dt, dr = pose_errors(result.best, T_TRUE)
+    assert dt < 0.002 and dr < 1.0
+    assert result.poses.shape[1:] == (4, 4) and 1 <= len(result.poses) <= 5
+    assert np.all(np.diff(result.scores) >= 0)
+    assert result.penetrations.shape == (len(result.poses), 3)
+    np.testing.assert_allclose(result.scores, result.losses + result.penetrations.max(axis=1))
+    sel = result.selection
+    # Omega_i: the points within 0.04 rad of the sensor's angle, ~ 0.08 / 0.6 of 800
+    assert np.all((sel.omega_sizes > 40) & (sel.omega_sizes < 200))
+    np.testing.assert_allclose(sel.delta_h, 0.04)
+    assert not sel.widened.any()
+    assert 1 <= sel.tuples.shape[0] <= 5000 and sel.delta_d > 0
+    assert any((sel.tuples == world["idx"]).all(axis=1)), "the true tuple was not selected"
+    assert set(result.seconds) == {"encode", "select", "optimize", "rank", "total"}
+    assert result.seconds["total"] >= sum(result.seconds[s] for s in est.STEPS)
+
+
+def test_steps_called_one_by_one_give_the_same_estimate(world):
+    e = make_estimator(world)
+    T = world["T_world_sensors"]
+    angles = e.encode(world["images"])
+    chosen = e.select(T, angles)
+    hypotheses = e.optimize(T, chosen.tuples)
+    ranked = e.rank(T, hypotheses.poses, hypotheses.losses)
+    whole = e.estimate(T, world["images"])
+    np.testing.assert_array_equal(ranked.poses, whole.poses)
+    np.testing.assert_array_equal(ranked.scores, whole.scores)
+
+
+def test_an_image_far_from_every_database_angle_widens_its_delta_h(world):
+    angles = world["db_angles"][world["idx"]].copy()
+    angles[1] = 0.7  # the database angles lie in [0, 0.6]
+    sel = make_estimator(world, angles=angles).estimate(world["T_world_sensors"], world["images"]).selection
+    assert sel.widened.tolist() == [False, True, False]
+    assert sel.delta_h[1] > 0.1 - 1e-9 and sel.omega_sizes[1] >= 1
+
+
+def test_baseline_uses_every_point_and_needs_no_images(world):
+    e = est.Estimator(world["points"], [world["mesh"].vertices], settings=settings(**{"select.method": "baseline"}))
+    result = e.estimate(world["T_world_sensors"])
+    assert result.angles is None
+    assert result.selection.omega_sizes.tolist() == [800, 800, 800]
+    assert np.isnan(result.selection.delta_h).all()
+    assert len(result.poses) >= 1 and result.n_hypotheses == result.selection.tuples.shape[0]
+
+
+@pytest.mark.parametrize("n_sensors", [1, 2, 4])
+def test_any_number_of_sensors_works(world, n_sensors):
+    T = world["T_world_sensors"]
+    if n_sensors == 4:
+        # a fourth sensor on the +x face
+        j = int(np.argmin(np.linalg.norm(world["points"] - [HALF[0], -0.01, -0.03], axis=1)))
+        T_extra = T_TRUE @ sensor_poses_touching(world["points"][j], np.array([1.0, 0, 0]), 0.3, 0.002)
+        T = np.concatenate([T, T_extra[None]])
+        angles = np.append(world["db_angles"][world["idx"]], world["db_angles"][j])
+    else:
+        T = T[:n_sensors]
+        angles = world["db_angles"][world["idx"]][:n_sensors]
+    e = make_estimator(world, angles=angles, **{"select.N": 300})
+    result = e.estimate(T, np.zeros((n_sensors, 320, 240, 3), dtype=np.uint8))
+    assert result.penetrations.shape[1] == n_sensors
+    assert result.selection.tuples.shape == (result.selection.tuples.shape[0], n_sensors)
+    if n_sensors == 4:
+        assert pose_errors(result.best, T_TRUE)[0] < 0.002
+
+
+def test_faithful_gd_solver_runs_through_the_estimator(world):
+    e = make_estimator(world, **{"select.N": 20, "optimize.solver": "gd", "optimize.n_steps": 30,
+                                 "optimize.n_translations": 2})
+    result = e.estimate(world["T_world_sensors"], world["images"])
+    assert result.n_hypotheses == 2 * result.selection.tuples.shape[0]
+    assert np.all(np.isfinite(result.scores))
+
+
+def _bad_pose(kind):
+    T = np.tile(np.eye(4), (3, 1, 1))
+    if kind == "nan":
+        T[1, 0, 3] = np.nan
+    elif kind == "inf":
+        T[2, 1, 1] = np.inf
+    elif kind == "scaled":
+        T[0, :3, :3] *= 1.1
+    elif kind == "reflection":
+        T[1, 0, 0] = -1.0
+    elif kind == "last_row":
+        T[0, 3, 0] = 0.5
+    return T
+
+
+@pytest.mark.parametrize(
+    "kind,message",
+    [("nan", "sensor pose 1 has NaN or infinite"), ("inf", "sensor pose 2 has NaN or infinite"),
+     ("scaled", "sensor pose 0: the upper-left 3x3 block is not a rotation"),
+     ("reflection", "sensor pose 1: the upper-left 3x3 block is not a rotation"),
+     ("last_row", "sensor pose 0: the last row")],
+)
+def test_bad_sensor_poses_are_rejected(world, kind, message):
+    with pytest.raises(InputError, match=message):
+        make_estimator(world).estimate(_bad_pose(kind), world["images"])
+
+
+@pytest.mark.parametrize(
+    "images,message",
+    [(np.zeros((2, 320, 240, 3), np.uint8), "2 tactile images for 3 sensor poses"),
+     (np.zeros((3, 240, 320, 3), np.uint8), r"image 0 has shape \(240, 320, 3\)"),
+     ([np.zeros((320, 240, 3), np.uint8)] * 2 + [np.zeros((320, 240), np.uint8)], r"image 2 has shape \(320, 240\)"),
+     (np.zeros((3, 320, 240, 3), np.float32), "image 0 has dtype float32"),
+     (None, "needs one tactile image per sensor")],
+)
+def test_bad_images_are_rejected(world, images, message):
+    with pytest.raises(InputError, match=message):
+        make_estimator(world).estimate(world["T_world_sensors"], images)
+
+
+def test_ours_without_an_encoder_is_rejected(world):
+    with pytest.raises(InputError, match="needs the database angles and an image encoder"):
+        est.Estimator(world["points"], [world["mesh"].vertices], settings=settings())
+
+
+# --- loading from artifacts ---------------------------------------------------------------------------
+
+
+def write_object_artifacts(artifacts: Path, name: str, mesh: trimesh.Trimesh, points: np.ndarray):
+    """object.h5 (the mesh, one convex piece) and surface.h5, as prepare_object and sample_surface write them."""
+    write_artifact(layout.object_file(artifacts, name), "object",
+                   {"vertices": mesh.vertices, "faces": mesh.faces, "metric_points": points,
+                    **pack_pieces([(np.asarray(mesh.vertices), np.asarray(mesh.faces))])})
+    write_artifact(layout.surface_file(artifacts, name), "surface",
+                   {"points": points, "normals": np.zeros_like(points), "face_index": np.zeros(len(points), int)})
+
+
+def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
+    """An untrained small autoencoder checkpoint and a latents.h5 whose angles cover [0, pi] (so that any
+    image angle has database neighbours): enough to run the 'ours' path end to end."""
+    import torch
+
+    from tactile6d import autoencoder as ae
+
+    cfg = dict(OmegaConf.to_container(OmegaConf.load(Path(__file__).parent.parent / "conf" / "ae" / "cpu.yaml")))
+    cfg.update(input_height=32, input_width=24, channels=[4, 8, 8, 16])
+    torch.manual_seed(0)  # build_model draws its weights from torch's global generator
+    model = ae.build_model(cfg)
+    ae.save_checkpoint(layout.ae_checkpoint(artifacts), model, ae.Normalisation(32, 24, (10.0, 10.0, 10.0)), cfg, {})
+    latents = np.random.default_rng(1).normal(size=(n_points, 128)).astype(np.float32)
+    write_artifact(layout.latents_file(artifacts, name), "latents",
+                   {"latents": latents, "latent_nc": np.ones(128, np.float32),
+                    "angles": np.linspace(0.0, np.pi, n_points)})
+
+
+def test_missing_artifacts_name_the_dvc_command(tmp_path, world):
+    with pytest.raises(ArtifactError) as missing_surface:
+        est.Estimator.from_artifacts("prim_x", tmp_path)
+    assert "surfaces/prim_x.h5: missing" in str(missing_surface.value)
+    assert "`dvc repro sample_surface@prim_x`" in str(missing_surface.value)
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    with pytest.raises(ArtifactError) as missing_latents:
+        est.Estimator.from_artifacts("prim_x", tmp_path)
+    assert "latents/prim_x.h5: missing" in str(missing_latents.value)
+    assert "`dvc repro encode_database@prim_x`" in str(missing_latents.value)
+    baseline = est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(["select.method=baseline"]))
+    assert baseline.encoder is None and baseline.points.shape == (800, 3)
+
+
+def test_ours_from_artifacts_encodes_images_with_the_checkpoint(tmp_path, world, data_dir):
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    write_tiny_autoencoder(tmp_path, 800, "prim_x")
+    e = est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(["select.N=200"]), data_dir=data_dir)
+    background = est.load_background(compose_config(), data_dir)
+    assert background.shape == (320, 240, 3) and background.dtype == np.uint8
+    # The no-contact image is the model's all-zero input: its angle is the same for every sensor.
+    images = np.stack([background] * 3)
+    angles = e.encode(images)
+    assert angles.shape == (3,) and np.ptp(angles) < 1e-6
+    result = e.estimate(world["T_world_sensors"], images)
+    assert len(result.poses) >= 1 and np.allclose(result.angles, angles)
+
+
+def test_missing_checkpoint_names_train_ae(tmp_path, world, data_dir):
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    write_tiny_autoencoder(tmp_path, 800, "prim_x")
+    layout.ae_checkpoint(tmp_path).unlink()
+    with pytest.raises(ArtifactError, match="dvc repro train_ae"):
+        est.Estimator.from_artifacts("prim_x", tmp_path, data_dir=data_dir)
