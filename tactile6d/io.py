@@ -201,13 +201,17 @@ def read_artifact(path: str | os.PathLike, schema: str) -> Artifact:
 
 def write_json(path: str | os.PathLike, obj: Any) -> Path:
     """Write JSON atomically (metrics files that DVC reads)."""
+    return write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=float) + "\n")
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write a text file atomically (temporary file beside it, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
     try:
         with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2, sort_keys=True, default=float)
-            f.write("\n")
+            f.write(text)
         os.replace(tmp_name, path)
     except BaseException:
         Path(tmp_name).unlink(missing_ok=True)

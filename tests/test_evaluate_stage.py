@@ -1,0 +1,60 @@
+"""Stage evaluate on fabricated scenes and ranked poses with known errors."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from stages import evaluate
+from tactile6d import layout
+from tactile6d.geometry import make_pose
+from tactile6d.io import write_artifact
+from tactile6d.meshes import pack_pieces
+from tactile6d.sensor import sensor_poses_touching
+
+
+@pytest.fixture()
+def artifacts(tmp_path):
+    mesh = trimesh.creation.box(extents=(0.12, 0.08, 0.05))
+    points, _ = trimesh.sample.sample_surface(mesh, 400, seed=0)
+    write_artifact(layout.object_file(tmp_path, "box"), "object",
+                   {"vertices": mesh.vertices, "faces": mesh.faces, "metric_points": points,
+                    **pack_pieces([(np.asarray(mesh.vertices), np.asarray(mesh.faces))])})
+    T_gt = np.stack([make_pose(np.eye(3), [0.1, 0.0, 0.2 + 0.1 * s]) for s in range(2)])
+    p = np.array([[0.0, 0.0, 0.025], [0.06, 0.0, 0.0], [0.0, -0.04, 0.0]])
+    n = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]])
+    sensors = np.stack([T @ sensor_poses_touching(p, n, 0.0, 0.0018) for T in T_gt])
+    names = np.array(["box/scene_0", "box/scene_1"])
+    write_artifact(layout.scenes_file(tmp_path, "tiny"), "scenes", {
+        "names": names, "objects": np.array(["box", "box"]), "T_world_object": T_gt, "T_world_sensors": sensors,
+        "images": np.zeros((2, 3, 320, 240, 3), np.uint8), "contact_points": np.zeros((2, 3, 3)),
+        "contact_normals": np.zeros((2, 3, 3)), "contact_types": np.zeros((2, 3), int)})
+    shift = make_pose(np.eye(3), [0.0, 0.03, 0.0])
+    for method, offset in (("ours", np.eye(4)), ("baseline", shift)):
+        poses = np.full((2, 5, 4, 4), np.nan)
+        poses[:, :2] = np.stack([T_gt @ offset, T_gt @ offset], axis=1)
+        write_artifact(layout.run_dir(tmp_path, "tiny", method) / "ranked.h5", "ranked", {
+            "names": names, "objects": np.array(["box", "box"]), "T_world_sensors": sensors,
+            "failure": np.array(["", ""]), "poses": poses, "scores": np.zeros((2, 5)), "losses": np.zeros((2, 5)),
+            "penetrations": np.zeros((2, 5, 3)), "n_poses": np.array([2, 2]),
+            "seconds_encode": np.array([0.1, 0.3]), "seconds_select": np.array([0.1, 0.1]),
+            "seconds_optimize": np.array([0.2, 0.2]), "seconds_rank": np.array([0.1, 0.1])})
+    return tmp_path
+
+
+def test_metrics_file_has_the_keys_and_the_values(artifacts):
+    assert evaluate.main(["--scene-set", "tiny", f"paths.artifacts_dir={artifacts}"]) == 0
+    m = json.loads(layout.metrics_file(artifacts, "tiny").read_text())
+    assert set(m) == {"ours", "baseline"}
+    for key in ("pos_err_cm_top1", "pos_err_cm_top5", "adi_auc_paper_top1", "adi_auc_std_top1",
+                "adi_auc_rot_top1", "contact_acc_top1", "time_s_median", "n_scenes"):
+        assert key in m["ours"] and key in m["baseline"]
+    assert m["ours"]["pos_err_cm_top1"] == 0 and m["ours"]["contact_acc_top1"] == 100
+    assert m["ours"]["adi_auc_paper_top1"] == 100
+    assert m["baseline"]["pos_err_cm_top1"] == pytest.approx(3.0)
+    assert m["baseline"]["contact_acc_top1"] == 0  # 3 cm off: the sensors no longer touch
+    assert m["ours"]["time_s_median"] == pytest.approx(0.6)  # 0.5 and 0.7 s per estimate
+    assert m["ours"]["n_scenes"] == 2
+    table = (artifacts / "eval" / "tiny_table.md").read_text()
+    assert "| box |" in table and "| **average** |" in table
