@@ -178,3 +178,20 @@ def ranked_pose_errors(
         "adi": adi(model_points, T_top, T_gt, tree),
         "adi_rotation": adi_rotation_only(model_points, T_top, T_gt, tree),
     }
+
+
+def auroc(positive: np.ndarray, negative: np.ndarray) -> float:
+    """Area under the ROC curve of a score that should be larger for ``positive`` than ``negative``.
+
+    Equals the probability that a random positive scores above a random negative, ties counting one
+    half (the Mann-Whitney U statistic over n_pos * n_neg). 0.5 is chance, 1 perfect separation.
+    """
+    pos = np.asarray(positive, dtype=np.float64).ravel()
+    neg = np.asarray(negative, dtype=np.float64).ravel()
+    if pos.size == 0 or neg.size == 0:
+        return float("nan")
+    from scipy.stats import rankdata
+
+    ranks = rankdata(np.concatenate([pos, neg]))
+    u = ranks[: pos.size].sum() - pos.size * (pos.size + 1) / 2.0
+    return float(u / (pos.size * neg.size))

@@ -118,3 +118,12 @@ def test_top_k_helpers_and_ranked_errors():
     np.testing.assert_allclose(errs["position"], 0.01 * np.arange(5), atol=1e-15)
     np.testing.assert_allclose(errs["adi_rotation"], 0.0, atol=1e-15)
     assert errs["adi"][0] == 0.0 and np.all(errs["adi"][1:] > 0)
+
+
+def test_auroc_against_pairwise_counting():
+    rng = np.random.default_rng(0)
+    pos, neg = rng.normal(1.0, 1.0, 40), rng.normal(0.0, 1.0, 30)
+    pos[:3] = neg[:3]  # some ties
+    pairs = (pos[:, None] > neg[None, :]).mean() + 0.5 * (pos[:, None] == neg[None, :]).mean()
+    assert M.auroc(pos, neg) == pytest.approx(pairs)
+    assert M.auroc([2.0, 3.0], [0.0, 1.0]) == 1.0 and M.auroc([0.0], [1.0]) == 0.0

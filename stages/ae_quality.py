@@ -1,0 +1,108 @@
+"""Stage ae_quality: how well the autoencoder's latent angle tells contacts apart, on objects it never saw.
+
+Reads every object's ``latents``, ``surfaces`` and ``objects`` artifacts, the ``caddeo2023`` scenes, the
+checkpoint and ``artifacts/ae/train.json``. Writes ``artifacts/metrics/ae.json`` (DVC metrics) and
+``artifacts/ae/angles_by_type.png``:
+- ``train_seconds`` and the held-out reconstruction loss on superquadric images;
+- the latent angle of the database points per contact type (the contact classifier of
+  tactile6d.contact), and ``auroc_flat_edge`` / ``auroc_edge_corner``: the AUROC of the angle as a score
+  separating flat from edge and edge from corner contacts (larger for the flatter kind: a flat press
+  changes more of the image);
+- ``triplet_angle_gap_median``: for each sensor of the paper's 40 triplets, the gap between its image's
+  angle and the angle of the database point nearest its true contact point (same object), median over
+  the 120 sensors; and the share of sensors whose gap is under ``select.delta_h``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+from scipy.spatial import cKDTree  # noqa: E402
+
+from tactile6d import autoencoder, contact, layout, metrics  # noqa: E402
+from tactile6d.config import parse_stage_args  # noqa: E402
+from tactile6d.errors import exit_on_error  # noqa: E402
+from tactile6d.geometry import invert_pose, transform_points  # noqa: E402
+from tactile6d.io import read_artifact, write_json  # noqa: E402
+
+
+def database_types(artifacts: str, name: str, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    obj = read_artifact(layout.object_file(artifacts, name), "object")
+    mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
+    return contact.classify_contacts(contact.sample_surface(mesh), points, normals)
+
+
+def triplet_gaps(artifacts: str, angles: dict, points: dict, model, norm, background) -> np.ndarray:
+    """|angle(triplet image) - angle(database point nearest the true contact)| per sensor of caddeo2023."""
+    scenes = read_artifact(layout.scenes_file(artifacts, "caddeo2023"), "scenes")
+    gaps = []
+    for s, obj in enumerate(scenes["objects"].tolist()):
+        if obj not in angles:
+            continue
+        latent_nc = read_artifact(layout.latents_file(artifacts, obj), "latents")["latent_nc"]
+        image_angles = autoencoder.latent_angles(
+            autoencoder.encode(model, norm, scenes["images"][s], background), latent_nc)
+        local = transform_points(invert_pose(scenes["T_world_object"][s]), scenes["contact_points"][s])
+        _, nearest = cKDTree(points[obj]).query(local)
+        gaps.extend(np.abs(image_angles - angles[obj][nearest]).tolist())
+    return np.asarray(gaps)
+
+
+def plot_angles(by_type: dict[str, np.ndarray], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    kinds = [k for k in contact.CONTACT_TYPES if len(by_type[k])]
+    ax.boxplot([by_type[k] for k in kinds], showfliers=False)
+    ax.set_xticks(range(1, len(kinds) + 1), [f"{k}\n(n={len(by_type[k])})" for k in kinds])
+    ax.set_ylabel("latent angle to no contact (rad)")
+    ax.set_title("Database points of the YCB objects, by contact type")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    _, cfg = parse_stage_args(argv, __doc__.splitlines()[0])
+    artifacts = cfg.paths.artifacts_dir
+    names = list(cfg.objects.names)
+    angles, points, types = {}, {}, {}
+    for name in names:
+        surface = read_artifact(layout.surface_file(artifacts, name), "surface")
+        angles[name] = read_artifact(layout.latents_file(artifacts, name), "latents")["angles"]
+        points[name] = surface["points"]
+        types[name] = database_types(artifacts, name, surface["points"], surface["normals"])
+    all_angles, all_types = np.concatenate(list(angles.values())), np.concatenate(list(types.values()))
+    by_type = {kind: all_angles[all_types == code] for code, kind in enumerate(contact.CONTACT_TYPES)}
+
+    model, norm, _ = autoencoder.load_checkpoint(layout.ae_checkpoint(artifacts))
+    background = read_artifact(layout.database_file(artifacts, names[0]), "database")["background"]
+    gaps = triplet_gaps(artifacts, angles, points, model, norm, background)
+    train = json.loads((layout.ae_dir(artifacts) / "train.json").read_text())
+
+    figures = {
+        "train_seconds": train["train_seconds"],
+        "heldout_recon_loss": train["final_val_loss"],
+        "auroc_flat_edge": metrics.auroc(by_type["flat"], by_type["edge"]),
+        "auroc_edge_corner": metrics.auroc(by_type["edge"], by_type["corner"]),
+        "triplet_angle_gap_median": float(np.median(gaps)) if gaps.size else float("nan"),
+        "triplet_gap_under_delta_h": float(np.mean(gaps < float(cfg.select.delta_h))) if gaps.size else float("nan"),
+        "delta_h": float(cfg.select.delta_h),
+        "angle_median_by_type": {k: float(np.median(v)) if len(v) else float("nan") for k, v in by_type.items()},
+        "count_by_type": {k: int(len(v)) for k, v in by_type.items()},
+    }
+    write_json(layout.metrics_file(artifacts, "ae"), figures)
+    plot_angles(by_type, layout.ae_dir(artifacts) / "angles_by_type.png")
+    print("ae_quality: " + ", ".join(f"{k} {v:.3f}" for k, v in figures.items() if isinstance(v, float)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(exit_on_error(main))
