@@ -5,34 +5,33 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def object_dir(artifacts_dir: str | Path, name: str) -> Path:
-    """Per-object artifacts: ``<artifacts>/objects/<name>/``."""
-    return Path(artifacts_dir) / "objects" / name
+# Per-object artifacts live in one folder per kind (``<artifacts>/<kind>/<object>.h5``), so a stage
+# that needs one kind for every object can depend on exactly that folder in dvc.yaml.
 
 
 def object_file(artifacts_dir: str | Path, name: str) -> Path:
     """Cleaned mesh, collision pieces, metric points (stage prepare_object)."""
-    return object_dir(artifacts_dir, name) / "object.h5"
+    return Path(artifacts_dir) / "objects" / f"{name}.h5"
 
 
 def collision_metrics_file(artifacts_dir: str | Path, name: str) -> Path:
     """How well the collision pieces cover the object (stage prepare_object)."""
-    return object_dir(artifacts_dir, name) / "collision.json"
+    return Path(artifacts_dir) / "metrics" / "collision" / f"{name}.json"
 
 
 def surface_file(artifacts_dir: str | Path, name: str) -> Path:
     """M surface points and normals (stage sample_surface)."""
-    return object_dir(artifacts_dir, name) / "surface.h5"
+    return Path(artifacts_dir) / "surfaces" / f"{name}.h5"
 
 
 def database_file(artifacts_dir: str | Path, name: str) -> Path:
     """Rendered tactile image of a DIGIT touching each surface point (stage render_database)."""
-    return object_dir(artifacts_dir, name) / "database.h5"
+    return Path(artifacts_dir) / "databases" / f"{name}.h5"
 
 
 def latents_file(artifacts_dir: str | Path, name: str) -> Path:
     """Autoencoder latents and latent angles of the database images (stage encode_database)."""
-    return object_dir(artifacts_dir, name) / "latents.h5"
+    return Path(artifacts_dir) / "latents" / f"{name}.h5"
 
 
 def training_set_file(artifacts_dir: str | Path) -> Path:

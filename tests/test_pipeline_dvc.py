@@ -50,7 +50,7 @@ def test_changing_M_reruns_only_sampling_and_changing_back_uses_the_run_cache(re
     first = exp_run(root, env, "sample.M=300")
     assert "Running stage 'prepare_object@prim_box'" in first
     assert "Running stage 'sample_surface@prim_box'" in first
-    surface = root / "artifacts/objects/prim_box/surface.h5"
+    surface = root / "artifacts/surfaces/prim_box.h5"
     original = surface.read_bytes()
 
     second = exp_run(root, env, "sample.M=200")
