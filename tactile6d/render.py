@@ -44,7 +44,7 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from tactile6d import sensor
-from tactile6d.errors import InputError, MeshError
+from tactile6d.errors import DataError, InputError, MeshError
 from tactile6d.geometry import invert_pose, make_pose
 
 # --- TACTO's config_digit.yml, in the DIGIT frame ------------------------------------------------------
@@ -486,19 +486,8 @@ class DigitRenderer:
         return RenderResult(self._add_noise(_truncate(image), seed), depth, mask)
 
     def _add_noise(self, image: np.ndarray, seed) -> np.ndarray:
-        """uint8 image + N(0, noise_std) per pixel and channel, clipped and truncated (TACTO) -> uint8.
-
-        OpenCV draws the noise (3x faster than NumPy's generator here), seeded from ``seed`` through a
-        SeedSequence; this reseeds OpenCV's per-thread global RNG. Truncating ``a + n`` equals rounding
-        ``a + n - 0.5``, which is what OpenCV's saturating add does with noise of mean -0.5.
-        """
-        if self.noise_std <= 0:
-            return image
-        state = np.random.SeedSequence(seed) if not isinstance(seed, np.random.SeedSequence) else seed
-        cv2.setRNGSeed(int(state.generate_state(1)[0] & 0x7FFFFFFF))
-        noise = np.empty((image.shape[0], image.shape[1] * image.shape[2]), dtype=np.float32)
-        cv2.randn(noise, -0.5, self.noise_std)
-        return cv2.add(image, noise.reshape(image.shape), dtype=cv2.CV_8U)
+        """uint8 image + this renderer's noise (``add_noise``)."""
+        return add_noise(image, self.noise_std, seed)
 
     # -- batches -----------------------------------------------------------------------------------
 
@@ -574,6 +563,40 @@ class DigitRenderer:
         pool = getattr(self, "_pool", None)
         if pool is not None:
             pool.shutdown(wait=False, cancel_futures=True)
+
+
+def add_noise(image: np.ndarray, noise_std: float, seed) -> np.ndarray:
+    """(H, W, 3) uint8 image + N(0, noise_std) per pixel and channel, clipped and truncated (TACTO) -> uint8.
+
+    seed: int, SeedSequence or None (fresh entropy). The same (image, noise_std, seed) always gives the
+    same output on the same OpenCV build, so a stored noise-free image and its seed reproduce a noisy
+    one exactly (tactile6d.database). OpenCV draws the noise (3x faster than NumPy's generator here),
+    seeded from ``seed`` through a SeedSequence; this reseeds OpenCV's per-thread global RNG. Truncating
+    ``a + n`` equals rounding ``a + n - 0.5``, which is what OpenCV's saturating add does with noise of
+    mean -0.5. noise_std <= 0 returns the image unchanged.
+    """
+    if noise_std <= 0:
+        return image
+    state = np.random.SeedSequence(seed) if not isinstance(seed, np.random.SeedSequence) else seed
+    cv2.setRNGSeed(int(state.generate_state(1)[0] & 0x7FFFFFFF))
+    noise = np.empty((image.shape[0], image.shape[1] * image.shape[2]), dtype=np.float32)
+    cv2.randn(noise, -0.5, noise_std)
+    return cv2.add(image, noise.reshape(image.shape), dtype=cv2.CV_8U)
+
+
+def load_background(cfg: Mapping, store) -> np.ndarray:
+    """The no-contact background named by ``cfg.render.background`` -> (H, W, 3) uint8 in OpenCV's BGR order.
+
+    cfg: the whole config (its ``render`` section is read); store: a ``tactile6d.data.DataStore``, which
+    checks the file against the data manifest (or downloads it). BGR is what ``DigitRenderer`` takes,
+    as TACTO does; ``DigitRenderer.background`` holds the RGB float version it adds imprints to.
+    Raises DataError when the file is not a readable image.
+    """
+    path = store.path(str(cfg["render"]["background"]))
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise DataError(f"{path}: not a readable image (config key render.background)")
+    return image
 
 
 def _prepare_background(background: np.ndarray, width: int, height: int) -> np.ndarray:
