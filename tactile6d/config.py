@@ -79,12 +79,12 @@ def section_to_dict(cfg: DictConfig, key: str) -> dict:
     return OmegaConf.to_container(require(cfg, key), resolve=True)
 
 
-def parse_stage_args(argv: list[str] | None, description: str, per_object: bool = False):
+def parse_stage_args(argv: list[str] | None, description: str, per_object: bool = False, add_arguments=None):
     """Common command line of ``python -m stages.<name>``.
 
     ``[--params params.yaml] [--object NAME] key=value ...``: without ``--params`` the config is
-    composed from ``conf/`` (so group overrides work), with it the composed file is read. Returns
-    ``(args, cfg)``.
+    composed from ``conf/`` (so group overrides work), with it the composed file is read.
+    ``add_arguments(parser)`` may add a stage's own flags. Returns ``(args, cfg)``.
     """
     import argparse
 
@@ -92,6 +92,8 @@ def parse_stage_args(argv: list[str] | None, description: str, per_object: bool 
     parser.add_argument("--params", help="composed params file (DVC passes params.yaml); default: compose conf/")
     if per_object:
         parser.add_argument("--object", required=True, help="object name (see conf/objects/)")
+    if add_arguments is not None:
+        add_arguments(parser)
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     return args, load_config(args.overrides, args.params)

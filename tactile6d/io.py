@@ -53,6 +53,29 @@ SCHEMAS: dict[str, Schema] = {
 }
 
 
+# Schemas defined next to the code that makes their artifacts, imported on first use.
+_SCHEMA_MODULES = {
+    "scenes": "tactile6d.scenes",
+    "database": "tactile6d.database",
+    "training_set": "tactile6d.database",
+    "latents": "tactile6d.autoencoder",
+    "tuples": "tactile6d.estimator",
+    "hypotheses": "tactile6d.estimator",
+    "ranked": "tactile6d.estimator",
+}
+
+
+def get_schema(name: str) -> Schema:
+    """The schema called ``name``, importing the module that defines it if needed."""
+    if name not in SCHEMAS and name in _SCHEMA_MODULES:
+        import importlib
+
+        importlib.import_module(_SCHEMA_MODULES[name])
+    if name not in SCHEMAS:
+        raise ValueError(f"unknown artifact schema {name!r}")
+    return SCHEMAS[name]
+
+
 def register_schema(schema: Schema) -> None:
     """Add a schema (modules that define new artifact kinds call this at import time)."""
     existing = SCHEMAS.get(schema.name)
@@ -79,9 +102,7 @@ def write_artifact(
     (JSON-serialisable values); ``config`` is stamped as JSON. ``compression`` ('gzip' or 'lzf')
     applies to arrays of 2 or more dimensions, chunked along the first axis.
     """
-    spec = SCHEMAS.get(schema)
-    if spec is None:
-        raise ValueError(f"unknown artifact schema {schema!r}")
+    spec = get_schema(schema)
     missing = [name for name in spec.datasets if name not in datasets]
     if missing:
         raise ValueError(f"artifact of schema {schema!r} lacks datasets {missing}")
@@ -143,7 +164,7 @@ def _read_datasets(group: h5py.Group, prefix: str = "") -> dict[str, np.ndarray]
 
 def read_artifact(path: str | os.PathLike, schema: str) -> Artifact:
     """Read and validate an artifact of the given schema; ArtifactError (one line) if anything is off."""
-    spec = SCHEMAS[schema]
+    spec = get_schema(schema)
     path = Path(path)
     hint = _remake_hint(spec)
     if not path.is_file():

@@ -1,0 +1,115 @@
+"""Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported, ``validation`` generated).
+
+Reads the objects' artifacts (meshes for contact types; surface points so validation contacts avoid
+database points), the paper's triplets from the data directory, config sections ``scenes`` and
+``render``. Writes ``artifacts/scenes/<set>.h5`` (schema ``scenes``).
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+
+import cv2
+import numpy as np
+import trimesh
+from tqdm import tqdm
+
+from tactile6d import contact, layout, scenes
+from tactile6d.config import parse_stage_args, section_to_dict
+from tactile6d.data import DataStore, group_files, group_names
+from tactile6d.errors import DataError, exit_on_error
+from tactile6d.io import read_artifact, read_scene_dir, write_artifact
+from tactile6d.render import DigitRenderer
+
+SCENE_SETS = ("caddeo2023", "validation")
+
+
+def load_mesh(artifacts_dir: str, name: str) -> trimesh.Trimesh:
+    art = read_artifact(layout.object_file(artifacts_dir, name), "object")
+    return trimesh.Trimesh(art["vertices"], art["faces"], process=False)
+
+
+def import_caddeo2023(object_names: list[str], store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
+    """The paper's triplets of the given objects, ground truth T_world_object = (0.1, 0, 0.2), R = I."""
+    with_triplets = [g.split(":", 1)[1] for g in group_names() if g.startswith("triplets:")]
+    chosen = [o for o in object_names if o in with_triplets]
+    if not chosen:
+        warnings.warn("none of objects.names has triplets in the paper's set: caddeo2023 is empty", stacklevel=2)
+    names, objects, poses, images = [], [], [], []
+    for obj in chosen:
+        folders = sorted({store.path(r).parent for r in group_files(f"triplets:{obj}")})
+        for folder in folders:
+            T, imgs = read_scene_dir(folder)
+            names.append(f"{obj}/{folder.name}")
+            objects.append(obj)
+            poses.append(T)
+            images.append(imgs)
+    surfaces = {obj: contact.sample_surface(load_mesh(artifacts_dir, obj)) for obj in chosen}
+    n = len(names)
+    T_world_object = np.broadcast_to(scenes.CADDEO2023_T_WORLD_OBJECT, (n, 4, 4)).copy()
+    if n == 0:
+        return scenes.SceneSet(np.zeros(0, str), np.zeros(0, str), T_world_object, np.zeros((0, 3, 4, 4)),
+                               np.zeros((0, 3, 320, 240, 3), np.uint8), np.zeros((0, 3, 3)), np.zeros((0, 3, 3)),
+                               np.zeros((0, 3), np.int64))
+    return scenes.scene_set_from_known_sensors(names, objects, T_world_object, np.stack(poses), np.stack(images),
+                                               surfaces)
+
+
+def generate_validation(object_names: list[str], cfg, store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
+    v = cfg.scenes.validation
+    spec = scenes.ValidationSpec(
+        scenes_per_object=int(v.scenes_per_object),
+        n_sensors=int(v.n_sensors),
+        candidates_per_object=int(v.candidates_per_object),
+        depth_range=(float(v.depth_min), float(v.depth_max)),
+        translation_range=float(v.translation_range),
+        min_database_distance=float(v.min_database_distance),
+    )
+    meshes = {o: load_mesh(artifacts_dir, o) for o in object_names}
+    surfaces = {o: contact.sample_surface(m) for o, m in meshes.items()}
+    database = {o: read_artifact(layout.surface_file(artifacts_dir, o), "surface")["points"] for o in object_names}
+    background = cv2.imread(str(store.path(cfg.render.background)), cv2.IMREAD_COLOR)
+    if background is None:
+        raise DataError(f"cannot read the background {cfg.render.background}")
+    renderer = DigitRenderer.from_config(cfg.render, background, workers=1)
+
+    def render(obj, T_world_object, T_world_sensors, seed):
+        return np.stack([renderer.render(meshes[obj], T_world_object, T, seed + i).image
+                         for i, T in enumerate(T_world_sensors)])
+
+    with tqdm(total=len(object_names) * spec.scenes_per_object, desc="validation scenes", unit="scene") as bar:
+        return scenes.generate_validation(object_names, meshes, surfaces, database, render, spec, int(v.seed),
+                                          progress=bar.update)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, cfg = parse_stage_args(
+        argv, __doc__.splitlines()[0],
+        add_arguments=lambda p: p.add_argument("--scene-set", required=True, choices=SCENE_SETS),
+    )
+    scene_set = args.scene_set
+    artifacts_dir = cfg.paths.artifacts_dir
+    store = DataStore(cfg.paths)
+    object_names = list(cfg.objects.names)
+    if scene_set == "caddeo2023":
+        out = import_caddeo2023(object_names, store, artifacts_dir)
+    else:
+        out = generate_validation(object_names, cfg, store, artifacts_dir)
+    counts = np.bincount(out.contact_types.ravel(), minlength=len(contact.CONTACT_TYPES))
+    print(f"{scene_set}: {len(out)} scenes; contact types "
+          + ", ".join(f"{t} {c}" for t, c in zip(contact.CONTACT_TYPES, counts)))
+    write_artifact(
+        layout.scenes_file(artifacts_dir, scene_set),
+        "scenes",
+        out.as_datasets(),
+        attrs={"scene_set": scene_set, "contact_type_counts": counts.tolist()},
+        config={"scenes": section_to_dict(cfg, "scenes"), "render": section_to_dict(cfg, "render"),
+                "objects": section_to_dict(cfg, "objects")},
+        compression="lzf",
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(exit_on_error(main))

@@ -1,0 +1,45 @@
+"""Stage make_scenes end to end in a temporary artifacts directory."""
+
+import numpy as np
+import pytest
+
+from stages import make_scenes, prepare_object, sample_surface
+from tactile6d import contact, layout
+from tactile6d.io import read_artifact
+from tactile6d.scenes import CADDEO2023_T_WORLD_OBJECT
+
+
+@pytest.fixture(scope="module")
+def artifacts(tmp_path_factory, data_dir):
+    root = str(tmp_path_factory.mktemp("artifacts"))
+    for obj in ("prim_box", "004_sugar_box"):
+        common = [f"paths.artifacts_dir={root}", "prepare.collision=hull"]
+        assert prepare_object.main(["--object", obj, *common]) == 0
+        assert sample_surface.main(["--object", obj, f"paths.artifacts_dir={root}", "sample.M=200"]) == 0
+    return root
+
+
+def test_caddeo2023_import(artifacts):
+    args = ["--scene-set", "caddeo2023", f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box,004_sugar_box]"]
+    assert make_scenes.main(args) == 0
+    art = read_artifact(layout.scenes_file(artifacts, "caddeo2023"), "scenes")
+    assert art["names"].tolist() == [f"004_sugar_box/triplet_{k}" for k in range(1, 5)]  # the box has no triplets
+    assert art["images"].shape == (4, 3, 320, 240, 3)
+    np.testing.assert_allclose(art["T_world_object"], np.broadcast_to(CADDEO2023_T_WORLD_OBJECT, (4, 4, 4)))
+    assert set(art["contact_types"].ravel()) <= set(range(len(contact.CONTACT_TYPES)))
+
+
+def test_validation_generation(artifacts):
+    args = ["--scene-set", "validation", f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box]",
+            "scenes.validation.scenes_per_object=2"]
+    assert make_scenes.main(args) == 0
+    art = read_artifact(layout.scenes_file(artifacts, "validation"), "scenes")
+    assert art["images"].shape == (2, 3, 320, 240, 3)
+    # every sensor leaves an imprint: its image differs from the others' background noise somewhere strongly
+    diff = np.abs(art["images"].astype(int) - np.median(art["images"].reshape(-1, 320, 240, 3), axis=0))
+    assert np.all(diff.reshape(2, 3, -1).max(axis=2) > 60)
+
+
+def test_unknown_scene_set(artifacts):
+    with pytest.raises(SystemExit):
+        make_scenes.main(["--scene-set", "nope", f"paths.artifacts_dir={artifacts}"])
