@@ -80,6 +80,12 @@ _RENDER_BATCH = 128  # poses per render_many call: bounds the uint8 images held 
 # --- placing sensors ---------------------------------------------------------------------------------
 
 
+def object_rng(name: str) -> np.random.Generator:
+    """The random generator of an object's database (rolls, then noise seeds): seeded by the object name
+    (CRC-32 of its UTF-8 bytes), so each object's database is reproducible and independent of the others."""
+    return np.random.default_rng(zlib.crc32(name.encode("utf-8")))
+
+
 def sensor_rolls(rule: str, n: int, rng: np.random.Generator) -> np.ndarray:
     """(n,) radians: the roll of each database sensor about its +x axis (config ``render.roll``).
 
