@@ -14,7 +14,14 @@ object would take 460 MB, and sensor noise does not compress:
   inside, so it compresses about 14x (measured on YCB contacts: 16 KB per image);
 - ``masks/data`` + ``masks/offsets``: image i's contact mask (H, W) bool (the renderer's ``depth > 0``),
   bit-packed (``np.packbits`` of the row-major mask), then zlib-compressed (about 0.3 KB);
-- ``mask_pixels`` (n,) int: how many pixels each mask has, to filter without decoding.
+- ``mask_pixels`` (n,) int: how many pixels each mask has, to filter without decoding;
+- ``no_contact`` (H, W, 3) uint8 RGB: a noisy no-contact image (the background plus noise);
+- ``T_object_sensor`` (n, 4, 4), ``depths`` (n,) metres the gel apex is pressed in, ``rolls`` (n,) radians.
+
+A database also holds ``points`` and ``normals`` (M, 3) (copied from the surface artifact: image i shows
+the sensor touching point i); a training set ``shape_index`` (n,), ``axes`` (n, 3) semi-axes a, b, c in
+metres, ``exponents`` (n, 2) e1, e2, and ``kinds`` (n,) uint8 (0 surface, 1 edge, 2 corner; root
+attribute ``kind_names``).
 
 ``database_images`` rebuilds the images exactly: ``add_noise(background + difference, noise_std, seed)``
 is bit for bit what ``DigitRenderer.render`` returns for the same pose and noise seed, because the
