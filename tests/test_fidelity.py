@@ -70,17 +70,21 @@ def _data_dir() -> Path:
 )
 def test_three_paper_images_are_reproduced():
     from tactile6d.commands import fidelity as command
-    from tactile6d.render import DigitRenderer
+    from tactile6d.config import compose_config
+    from tactile6d.data import DataStore
+    from tactile6d.geometry import text_to_poses
+    from tactile6d.io import read_tactile_image
+    from tactile6d.render import DigitRenderer, load_background
 
-    data = _data_dir()
-    config = command.load_render_config()
-    renderer = DigitRenderer.from_config(config, command.read_image(data / config["background"], rgb=False), workers=1)
-    folder = data / "caddeo2023" / "triplets" / "011_banana" / "triplet_1"
-    mesh = command.load_mesh(data / "ycb" / "011_banana" / "textured_simple.obj")
-    poses = command.text_to_poses((folder / "poses_sensors.txt").read_text())
+    cfg = compose_config([f"paths.data_dir={_data_dir()}"])
+    store = DataStore(cfg.paths)
+    renderer = DigitRenderer.from_config(cfg.render, load_background(cfg, store), workers=1)
+    folder = _data_dir() / "caddeo2023" / "triplets" / "011_banana" / "triplet_1"
+    mesh = command.load_object(store, "011_banana")
+    poses = text_to_poses((folder / "poses_sensors.txt").read_text())
     for i in range(3):
         ours = renderer.render(mesh, command.GROUND_TRUTH, poses[i], seed=i).image
-        paper = command.read_image(folder / f"Image_heatmap_{i}.png", rgb=True)
+        paper = read_tactile_image(folder / f"Image_heatmap_{i}.png")
         scores = fidelity.compare(paper, ours, renderer.background)
         # measured 0.85-0.91 IoU and 0.95-0.98 correlation; the bounds leave room for noise and platforms
         assert scores["iou"] > 0.7 and scores["corr"] > 0.8, (i, scores)

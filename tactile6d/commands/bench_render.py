@@ -8,6 +8,10 @@ two steps of one image in this process: ``contact`` (cropping, ray casting, shad
 
 Wall-clock timings depend on what else runs on the machine: the JSON reports the 1-minute load average
 next to them, and the CPU time per image, which does not.
+
+    tactile6d bench render [-n N] [--object NAME] [--seed S] [key=value ...]
+
+``key=value`` are config overrides (Hydra syntax), e.g. ``render.workers=1`` or ``render.render_step=1``.
 """
 
 from __future__ import annotations
@@ -16,57 +20,44 @@ import argparse
 import json
 import os
 import time
-from pathlib import Path
 
 import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from tactile6d import sensor
-from tactile6d.commands.fidelity import RENDER_CONFIG, default_data_dir, load_mesh, load_render_config, read_image
-from tactile6d.errors import ConfigError
+from tactile6d import meshes, sensor
+from tactile6d.config import compose_config, section_to_dict
+from tactile6d.data import DataStore
+from tactile6d.database import sensor_rolls
 from tactile6d.geometry import invert_pose
-from tactile6d.render import DigitRenderer, mesh_arrays
+from tactile6d.render import DigitRenderer, load_background, mesh_arrays
 
 
 def database_poses(mesh: trimesh.Trimesh, n: int, press_depth: float, roll: str, seed: int) -> np.ndarray:
     """(n, 4, 4) T_object_sensor: DIGITs touching n random surface points (area-uniform) of the mesh."""
     rng = np.random.default_rng(seed)
     points, faces = trimesh.sample.sample_surface(mesh, n, seed=rng)
-    if roll == "random":
-        rolls = rng.uniform(-np.pi, np.pi, n)
-    elif roll == "zero":
-        rolls = np.zeros(n)
-    else:
-        raise ConfigError(f"render.roll must be 'random' or 'zero', got {roll!r}")
-    return sensor.sensor_poses_touching(points, mesh.face_normals[faces], rolls, press_depth)
+    return sensor.sensor_poses_touching(points, mesh.face_normals[faces], sensor_rolls(roll, n, rng), press_depth)
 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tactile6d bench render", description=__doc__.split("\n")[0])
-    parser.add_argument(
-        "--data-dir", type=Path, default=None, help="data directory (default: $TACTILE6D_DATA or ../shared/data)"
-    )
-    parser.add_argument("--object", default="002_master_chef_can", help="YCB object under <data>/ycb")
+    parser.add_argument("--object", default="002_master_chef_can", help="YCB object (data directory ycb/<name>)")
     parser.add_argument("-n", type=int, default=200, help="images to time")
-    parser.add_argument("--workers", type=int, default=None, help="processes (default: the config's workers)")
-    parser.add_argument("--config", type=Path, default=RENDER_CONFIG, help="render config YAML")
-    parser.add_argument(
-        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override a render config key"
-    )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value, e.g. render.workers=1")
     args = parser.parse_args(argv)
 
-    data_dir = args.data_dir or default_data_dir()
-    config = load_render_config(args.config, args.overrides)
-    workers = int(args.workers or config["workers"])
-    mesh = load_mesh(data_dir / "ycb" / args.object / "textured_simple.obj")
+    cfg = compose_config(args.overrides)
+    config = section_to_dict(cfg, "render")
+    store = DataStore(cfg.paths)
+    workers = int(config["workers"])
+    mesh, _ = meshes.clean_mesh(meshes.load_mesh_file(store.path(f"ycb/{args.object}/textured_simple.obj")))
     arrays = mesh_arrays(mesh)
     poses = database_poses(mesh, args.n, config["press_depth"], config["roll"], args.seed)
-    background = read_image(data_dir / config["background"], rgb=False)
     # Database sampling puts some sensors across sharp edges, where the body meets the object; the
     # database renders those as TACTO does, so the benchmark does too.
-    with DigitRenderer.from_config(config, background, workers=workers, strict=False) as renderer:
+    with DigitRenderer.from_config(config, load_background(cfg, store), strict=False) as renderer:
         renderer.render_many(arrays, poses, seeds=args.seed)  # warm-up: workers start, imports, caches
 
         with tqdm(total=args.n, desc="bench render", unit="image") as bar:

@@ -1,0 +1,113 @@
+"""Stage make_training_set: tactile images of contacts with random superquadrics, for the autoencoder.
+
+Reads config sections ``training_set`` (how many images, shapes, sizes, exponents, press depths;
+tactile6d.superquadrics.sample_training_contacts) and ``render`` (the simulator and its background, read
+from the data directory). Writes ``artifacts/training_set.h5`` (schema ``training_set``,
+tactile6d.database): the images and contact masks stored compactly, and per image its sensor pose in
+the shape's frame, the shape (``shape_index``, semi-axes, exponents e1 and e2), press depth, roll, contact
+kind (``superquadrics.KIND_NAMES``: the kind of the mesh vertex nearest to the contact point) and whether
+the shape enters the sensor body (``body_contact``, rendered anyway, as TACTO would).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from tactile6d import database, layout
+from tactile6d import superquadrics as sq
+from tactile6d.config import parse_stage_args, section_to_dict
+from tactile6d.data import DataStore
+from tactile6d.errors import ConfigError, exit_on_error
+from tactile6d.io import write_artifact
+from tactile6d.render import DigitRenderer, add_noise, load_background, mesh_arrays
+from tactile6d.sensor import CONTACT_POINT, GEL_CENTER, contact_normals, contact_points
+
+
+def surface_points(T_object_sensors: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """The surface point each sensor touches: (n, 3), from T (n, 4, 4) and press depths (n,) metres.
+
+    Inverts ``sensor_poses_touching``: the contact point lies ``GEL_CENTER.x - CONTACT_POINT.x - depth``
+    outside the surface along the normal (the sensor's -x axis).
+    """
+    gap = GEL_CENTER[0] - CONTACT_POINT[0] - np.asarray(depths)
+    return contact_points(T_object_sensors) - gap[:, None] * contact_normals(T_object_sensors)
+
+
+def contact_kinds(mesh, points: np.ndarray, sharp_radius: float) -> np.ndarray:
+    """(n,) uint8 kind (surface, edge, corner) of the mesh vertex nearest each point (n, 3)."""
+    _, nearest = cKDTree(np.asarray(mesh.vertices)).query(points)
+    return sq.vertex_kinds(mesh, sharp_radius)[nearest].astype(np.uint8)
+
+
+def shape_groups(contacts: list[sq.TrainingContact]) -> list[tuple[int, int]]:
+    """Index ranges [a, b) of consecutive contacts on the same shape (sample_training_contacts groups them)."""
+    edges = [0] + [i for i in range(1, len(contacts)) if contacts[i].shape is not contacts[i - 1].shape]
+    return list(zip(edges, edges[1:] + [len(contacts)]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0])
+    start = time.perf_counter()
+    ts = cfg.training_set
+    n = int(ts.n_images)
+    if n < 1:
+        raise ConfigError(f"training_set.n_images must be positive, got {n}")
+    rng = np.random.default_rng(int(ts.seed))
+    contacts = sq.sample_training_contacts(n, rng, ts)
+    noise_seeds = rng.integers(0, 2**62, size=n + 1)  # one per image, the last for the no-contact image
+    poses = np.stack([c.T_object_sensor for c in contacts])
+    depths = np.array([c.depth for c in contacts])
+
+    groups = shape_groups(contacts)
+    kinds = np.empty(n, dtype=np.uint8)
+    body = np.empty(n, dtype=bool)
+    background = load_background(cfg, DataStore(cfg.paths))
+    with DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False) as renderer:
+        images = database.CompactImages(renderer.background)
+        with tqdm(total=n, desc="make_training_set", unit="image") as bar:
+            for a, b in groups:
+                # the mesh the contacts were drawn on (deterministic from the shape and the mesh settings)
+                mesh = sq.superquadric_mesh(contacts[a].shape, float(ts.mesh_max_edge), float(ts.mesh_max_turn))
+                database.render_compact(renderer, mesh_arrays(mesh), poses[a:b], images, progress=bar.update)
+                kinds[a:b] = contact_kinds(mesh, surface_points(poses[a:b], depths[a:b]), float(ts.sharp_radius))
+                body[a:b] = database.body_contacts(mesh.vertices, poses[a:b])
+    shape_index = np.concatenate([np.full(b - a, k) for k, (a, b) in enumerate(groups)])
+    no_contact = add_noise(images.background, float(cfg.render.noise_std), int(noise_seeds[-1]))
+
+    path = write_artifact(
+        layout.training_set_file(cfg.paths.artifacts_dir),
+        "training_set",
+        {
+            "T_object_sensor": poses,
+            "shape_index": shape_index,
+            "axes": np.array([c.shape.axes for c in contacts]),
+            "exponents": np.array([[c.shape.e1, c.shape.e2] for c in contacts]),
+            "depths": depths,
+            "rolls": np.array([c.roll for c in contacts]),
+            "kinds": kinds,
+            "no_contact": no_contact,
+            "body_contact": body,
+            **images.datasets(float(cfg.render.noise_std), noise_seeds[:-1]),
+        },
+        attrs={"kind_names": list(sq.KIND_NAMES), "n_shapes": len(groups)},
+        config={"training_set": section_to_dict(cfg, "training_set"), "render": section_to_dict(cfg, "render")},
+    )
+    size = path.stat().st_size
+    counts = np.bincount(kinds, minlength=len(sq.KIND_NAMES))
+    print(
+        f"training set: {n} images of {len(groups)} shapes in {time.perf_counter() - start:.1f} s, "
+        f"{size / 2**20:.1f} MB ({size / n / 1024:.1f} KB per image); contact in "
+        f"{np.count_nonzero(images.mask_pixels)}; kinds "
+        + ", ".join(f"{name} {c}" for name, c in zip(sq.KIND_NAMES, counts))
+        + f"; shape inside the sensor body in {int(body.sum())}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(exit_on_error(main))
