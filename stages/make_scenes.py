@@ -10,7 +10,6 @@ from __future__ import annotations
 import sys
 import warnings
 
-import cv2
 import numpy as np
 import trimesh
 from tqdm import tqdm
@@ -18,9 +17,9 @@ from tqdm import tqdm
 from tactile6d import contact, layout, scenes
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore, group_files, group_names
-from tactile6d.errors import DataError, exit_on_error
+from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, read_scene_dir, write_artifact
-from tactile6d.render import DigitRenderer
+from tactile6d.render import DigitRenderer, load_background
 
 SCENE_SETS = ("caddeo2023", "validation")
 
@@ -69,10 +68,7 @@ def generate_validation(object_names: list[str], cfg, store: DataStore, artifact
     meshes = {o: load_mesh(artifacts_dir, o) for o in object_names}
     surfaces = {o: contact.sample_surface(m) for o, m in meshes.items()}
     database = {o: read_artifact(layout.surface_file(artifacts_dir, o), "surface")["points"] for o in object_names}
-    background = cv2.imread(str(store.path(cfg.render.background)), cv2.IMREAD_COLOR)
-    if background is None:
-        raise DataError(f"cannot read the background {cfg.render.background}")
-    renderer = DigitRenderer.from_config(cfg.render, background, workers=1)
+    renderer = DigitRenderer.from_config(cfg.render, load_background(cfg, store), workers=1)
 
     def render(obj, T_world_object, T_world_sensors, seed):
         return np.stack([renderer.render(meshes[obj], T_world_object, T, seed + i).image
