@@ -235,9 +235,13 @@ def preprocess(images, background: np.ndarray, norm: Normalisation) -> torch.Ten
 def fit_normalisation(diffs: torch.Tensor, height: int, width: int) -> Normalisation:
     """Resized differences (n, 3, H, W) of the training split -> Normalisation with their per-channel RMS.
 
-    A channel that never changes (RMS 0) keeps scale 1 rather than dividing by zero.
+    A channel that never changes (RMS 0) keeps scale 1 rather than dividing by zero. Accumulated in
+    float64 chunk by chunk, so no full-size float64 copy is made.
     """
-    rms = diffs.double().pow(2).mean(dim=(0, 2, 3)).sqrt()
+    sum_sq = torch.zeros(3, dtype=torch.float64)
+    for sl in _chunks(diffs.shape[0], _PREPROCESS_CHUNK):
+        sum_sq += diffs[sl].double().pow(2).sum(dim=(0, 2, 3))
+    rms = (sum_sq / max(1, diffs.shape[0] * diffs.shape[2] * diffs.shape[3])).sqrt()
     rms = torch.where(rms > 1e-6, rms, torch.ones_like(rms))
     return Normalisation(height=height, width=width, scale=tuple(float(s) for s in rms))
 
@@ -315,8 +319,9 @@ def train(
     weights bit for bit on the same machine and thread count.
 
     Returns the model (eval mode, on the training device), its Normalisation, and a history dict:
-    ``train_loss``, ``val_loss`` (NaN when there is no validation split), ``seconds`` (per-epoch
-    lists), ``preprocess_seconds``, ``n_train``, ``n_val``, ``seed``, ``device``.
+    ``train_loss``, ``val_loss`` (NaN when there is no validation split), ``seconds`` (wall clock) and
+    ``cpu_seconds`` (this process, all threads; on a shared machine their ratio shows the contention),
+    per-epoch lists; ``preprocess_seconds``, ``n_train``, ``n_val``, ``seed``, ``device``.
     """
     c = AEConfig.from_cfg(cfg)
     vf = c.val_fraction if val_fraction is None else float(val_fraction)
@@ -331,14 +336,17 @@ def train(
         for sl in _chunks(n, _PREPROCESS_CHUNK):
             x[sl] = _resized_difference(images[sl], background, c.input_height, c.input_width)
         train_idx, val_idx = split_indices(n, vf, seed)
-        norm = fit_normalisation(x[torch.from_numpy(train_idx)], c.input_height, c.input_width)
-        x /= torch.tensor(norm.scale, dtype=torch.float32)[None, :, None, None]
         x_train, x_val = x[torch.from_numpy(train_idx)], x[torch.from_numpy(val_idx)]
         del x
+        norm = fit_normalisation(x_train, c.input_height, c.input_width)
+        scale = torch.tensor(norm.scale, dtype=torch.float32)[None, :, None, None]
+        x_train /= scale
+        x_val /= scale
         history = {
             "train_loss": [],
             "val_loss": [],
             "seconds": [],
+            "cpu_seconds": [],
             "preprocess_seconds": time.perf_counter() - t0,
             "n_train": len(train_idx),
             "n_val": len(val_idx),
@@ -355,7 +363,7 @@ def train(
 
             epochs = tqdm(epochs, desc="train_ae", unit="epoch")
         for _ in epochs:
-            t_epoch = time.perf_counter()
+            t_epoch, cpu_epoch = time.perf_counter(), time.process_time()
             model.train()
             order = torch.randperm(x_train.shape[0], generator=shuffler)
             total = 0.0
@@ -371,6 +379,7 @@ def train(
                 _mean_loss(model, x_val, c.batch_size, c.bootstrap_fraction, device) if len(val_idx) else float("nan")
             )
             history["seconds"].append(time.perf_counter() - t_epoch)
+            history["cpu_seconds"].append(time.process_time() - cpu_epoch)
             if progress:
                 epochs.set_postfix(train=f"{history['train_loss'][-1]:.4g}", val=f"{history['val_loss'][-1]:.4g}")
     model.eval()
@@ -422,6 +431,18 @@ def _checkpoint_error(path: Path, what: str) -> ArtifactError:
     )
 
 
+def _plain(value):
+    """NumPy scalars and arrays inside dicts and lists -> Python numbers and lists, which torch.load
+    accepts with ``weights_only=True`` (it refuses NumPy objects)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    return value
+
+
 def save_checkpoint(
     path: str | Path, model: TactileAutoencoder, norm: Normalisation, cfg: Mapping | AEConfig, history: dict
 ) -> None:
@@ -433,7 +454,7 @@ def save_checkpoint(
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "norm": norm.to_dict(),
         "cfg": asdict(AEConfig.from_cfg(cfg)),
-        "history": history,
+        "history": _plain(history),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")

@@ -151,7 +151,8 @@ def test_checkpoint_round_trip(tmp_path, small_set):
     model = ae.build_model(cfg)
     norm = ae.Normalisation(32, 24, (1.5, 2.5, 3.5))
     path = tmp_path / "sub" / "ae.pt"
-    ae.save_checkpoint(path, model, norm, cfg, {"train_loss": [1.0]})
+    # NumPy values in the history must not make the checkpoint unloadable with weights_only=True
+    ae.save_checkpoint(path, model, norm, cfg, {"train_loss": np.array([1.0, 0.5]), "seconds": [np.float64(2)]})
     assert [p.name for p in path.parent.iterdir()] == ["ae.pt"]  # no temporary file left behind
     model2, norm2, cfg2 = ae.load_checkpoint(path)
     assert norm2 == norm and cfg2["channels"] == (4, 8, 8, 16)
