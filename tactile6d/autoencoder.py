@@ -36,8 +36,13 @@ import torch.nn.functional as F
 from torch import nn
 
 from tactile6d.errors import ArtifactError, ConfigError, InputError
+from tactile6d.io import Schema, register_schema
 
 CHECKPOINT_FORMAT = "tactile6d-autoencoder-v1"
+
+# Made by stage encode_database: the database latents (M, 128), the no-contact latent (128,) and each
+# database image's latent angle (M,) in radians.
+register_schema(Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")))
 _CHECKPOINT_KEYS = ("format", "state_dict", "norm", "cfg", "history")
 # Images preprocessed at once: bounds the float32 copy of full-size images (about 0.9 MB each).
 _PREPROCESS_CHUNK = 256

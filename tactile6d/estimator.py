@@ -65,10 +65,6 @@ register_schema(Schema(
     _RUN_FIELDS + ("poses", "scores", "losses", "penetrations", "n_poses", "seconds_encode", "seconds_select",
                    "seconds_optimize", "seconds_rank"),
 ))
-# Made by stage encode_database: database latents (M, 128), the no-contact latent (128,), angles (M,) rad.
-# Its home is tactile6d.autoencoder (io._SCHEMA_MODULES); registered here too, identically, until that
-# branch lands, so that the estimator can read latents.h5 now. Delete this once autoencoder.py has it.
-register_schema(Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")))
 
 
 # --- settings ----------------------------------------------------------------------------------------
