@@ -31,6 +31,7 @@ test: install
 
 reproduce: install
 	$(BIN)/dvc repro
+	$(BIN)/python scripts/update_readme.py
 
 # Refresh the committed params.yaml after editing conf/ (plain `dvc repro` reads params.yaml).
 params: install
