@@ -12,10 +12,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from tqdm import tqdm
 
-from tactile6d import contact, evaluation, layout, metrics
+from tactile6d import evaluation, layout
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_json, write_text
@@ -24,25 +23,16 @@ METHODS = ("ours", "baseline")
 STEPS = ("encode", "select", "optimize", "rank")
 
 
-def load_object(artifacts_dir: str, name: str):
-    """(model points (N, 3), contact SurfaceSamples) of a prepared object."""
-    art = read_artifact(layout.object_file(artifacts_dir, name), "object")
-    mesh = trimesh.Trimesh(art["vertices"], art["faces"], process=False)
-    return art["metric_points"], contact.sample_surface(mesh)
-
-
 def method_errors(ranked, scenes, objects_data, k: int) -> dict[str, np.ndarray]:
     """Per-scene (S, k) error arrays of one method's ranked poses."""
     names = scenes["names"].tolist()
     if ranked["names"].tolist() != names:
         raise ValueError("ranked poses and scenes list different scenes: re-run the pipeline")
     rows = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok")}
-    trees = {obj: metrics.model_tree(points) for obj, (points, _) in objects_data.items()}
     for s in tqdm(range(len(names)), desc="evaluate", unit="scene", leave=False):
-        obj = str(scenes["objects"][s])
-        points, surface = objects_data[obj]
+        ref = objects_data[str(scenes["objects"][s])]
         e = evaluation.scene_errors(ranked["poses"][s], int(ranked["n_poses"][s]), scenes["T_world_object"][s],
-                                    scenes["T_world_sensors"][s], points, surface, tree=trees[obj], k=k)
+                                    scenes["T_world_sensors"][s], ref.points, ref.surface, tree=ref.tree, k=k)
         for key in rows:
             rows[key].append(e[key])
     return {key: np.array(value).reshape(len(names), k) for key, value in rows.items()}
@@ -65,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]
-    objects_data = {obj: load_object(artifacts, obj) for obj in objects}
+    objects_data = {obj: evaluation.load_object_reference(artifacts, obj) for obj in objects}
     k = evaluation.TOP_K
 
     summary, details, headline = {}, {}, {}

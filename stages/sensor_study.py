@@ -14,11 +14,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
-from tactile6d import contact, evaluation, layout, metrics
+from tactile6d import evaluation, layout
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import InputError, exit_on_error
 from tactile6d.estimator import Estimator
@@ -48,11 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]
     n_sensors = scenes["T_world_sensors"].shape[1] if len(scenes["names"]) else 0
 
-    models = {}
-    for obj in objects:
-        art = read_artifact(layout.object_file(artifacts, obj), "object")
-        mesh = trimesh.Trimesh(art["vertices"], art["faces"], process=False)
-        models[obj] = (art["metric_points"], metrics.model_tree(art["metric_points"]), contact.sample_surface(mesh))
+    references = {obj: evaluation.load_object_reference(artifacts, obj) for obj in objects}
 
     results = {}
     for method in METHODS:
@@ -65,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             subsets = list(itertools.combinations(range(n_sensors), L))
             for s in tqdm(range(len(scenes["names"])), desc=f"{method} L={L}", unit="scene", leave=False):
                 obj = str(scenes["objects"][s])
-                points, tree, surface = models[obj]
+                ref = references[obj]
                 for subset in subsets:
                     idx = list(subset)
                     T_sensors = scenes["T_world_sensors"][s][idx]
@@ -74,8 +69,8 @@ def main(argv: list[str] | None = None) -> int:
                         poses, n = est.poses, len(est.poses)
                     except InputError:  # no tuple matched: a failed estimate
                         poses, n = np.zeros((0, 4, 4)), 0
-                    e = evaluation.scene_errors(poses, n, scenes["T_world_object"][s], T_sensors, points, surface,
-                                                tree=tree)
+                    e = evaluation.scene_errors(poses, n, scenes["T_world_object"][s], T_sensors, ref.points,
+                                                ref.surface, tree=ref.tree)
                     for key in errors:
                         errors[key].append(e[key])
                     owners.append(obj)

@@ -38,6 +38,7 @@ from tactile6d.sensor import contact_normals, contact_points
 
 CONTACT_TYPES = ("flat", "edge", "corner", "curved")
 FLAT, EDGE, CORNER, CURVED = range(4)
+NO_SURFACE = -1  # no surface facing the sensor near the point (e.g. a wrong pose puts it behind the object)
 
 CONTACT_TOLERANCE = 0.003  # metres: the largest gap or penetration of a sensor that still counts as touching
 FACING_MAX_DEG = 60.0  # the gel faces the surface if some surface near the contact is this close to its normal
@@ -138,7 +139,7 @@ def _classify_one(samples: SurfaceSamples, point: np.ndarray, normal: np.ndarray
     front = normals @ normal > np.cos(np.radians(rule.backface_deg))
     normals, points = normals[front], samples.points[idx[front]]
     if len(normals) < 3:
-        raise ValueError(f"no surface within {rule.radius} m of the contact at {point}: sample spacing too coarse?")
+        return NO_SURFACE
     if _out_of_plane_deg(normals) >= rule.corner_min_deg:
         return CORNER
     if _count_facets(points, normals, rule) >= 2:
@@ -155,7 +156,8 @@ def classify_contacts(
     normals: np.ndarray,
     rule: ContactRule = ContactRule(),
 ) -> np.ndarray:
-    """Contact type codes (n,) int (indices into ``CONTACT_TYPES``), in the mesh's frame.
+    """Contact type codes (n,) int (indices into ``CONTACT_TYPES``, or ``NO_SURFACE`` where no surface
+    within the neighbourhood faces the sensor), in the mesh's frame.
 
     points (n, 3): contact locations, snapped here to their nearest surface point; normals (n, 3):
     the sensor's approach direction as an outward surface normal (``sensor.contact_normals``).
@@ -169,8 +171,9 @@ def classify_contacts(
 
 
 def contact_type_names(codes: np.ndarray) -> np.ndarray:
-    """Codes (...) -> names (...) from ``CONTACT_TYPES``."""
-    return np.asarray(CONTACT_TYPES)[np.asarray(codes)]
+    """Codes (...) -> names (...) from ``CONTACT_TYPES``; ``NO_SURFACE`` -> "none"."""
+    codes = np.asarray(codes)
+    return np.where(codes == NO_SURFACE, "none", np.asarray(CONTACT_TYPES)[np.clip(codes, 0, None)])
 
 
 def winding_numbers(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:

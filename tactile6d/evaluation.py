@@ -10,10 +10,13 @@ The average row is the mean of the per-object figures.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 
-from tactile6d import contact, metrics
+from tactile6d import contact, layout, metrics
+from tactile6d.io import read_artifact
 
 TOP_K = 5
 
@@ -25,6 +28,22 @@ SUMMARY_KEYS = (
     "adi_auc_rot_top1", "adi_auc_rot_top5",
     "contact_acc_top1", "contact_acc_top5",
 )
+
+
+@dataclass
+class ObjectReference:
+    """What the metrics need of one object: its metric points (N, 3), a tree over them, its surface."""
+
+    points: np.ndarray
+    tree: object
+    surface: contact.SurfaceSamples
+
+
+def load_object_reference(artifacts_dir, name: str) -> ObjectReference:
+    """The reference of a prepared object (``artifacts/objects/<name>.h5``, stage prepare_object)."""
+    art = read_artifact(layout.object_file(artifacts_dir, name), "object")
+    mesh = trimesh.Trimesh(art["vertices"], art["faces"], process=False)
+    return ObjectReference(art["metric_points"], metrics.model_tree(art["metric_points"]), contact.sample_surface(mesh))
 
 
 def scene_errors(

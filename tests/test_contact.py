@@ -145,3 +145,11 @@ def test_sugar_box_paper_triplets_are_correct_at_the_true_pose(sugar_box):
         text = (data / "caddeo2023" / "triplets" / "004_sugar_box" / f"triplet_{k}" / "poses_sensors.txt").read_text()
         ok, details = C.contact_accuracy_single(surface, T_gt, T_gt, g.text_to_poses(text))
         assert ok, details
+
+
+def test_a_sensor_facing_away_from_every_surface_gets_no_type():
+    box = trimesh.creation.box(extents=(0.1, 0.06, 0.04))
+    # on the +z face, but approaching from inside the box: no surface faces it
+    codes = C.classify_contacts(box, np.array([[0.0, 0.0, 0.02]]), np.array([[0.0, 0.0, -1.0]]))
+    assert codes.tolist() == [C.NO_SURFACE]
+    assert C.contact_type_names(codes).tolist() == ["none"]
