@@ -399,8 +399,8 @@ def encode(
 ) -> np.ndarray:
     """Images uint8 (n, 320, 240, 3) -> latents float32 (n, latent_dim), on the model's device.
 
-    Deterministic for a given batch_size (a different batch split may change the last bits on some
-    backends). Encode the background itself (``images = background[None]``) to get ``h_nc``.
+    Deterministic for a given batch_size and torch thread count (another batch split or thread count
+    may change the last bits). Encode the background itself (``images = background[None]``) to get ``h_nc``.
     """
     _check_images(images, background)
     device = next(model.parameters()).device
