@@ -9,6 +9,9 @@ VENV := .venv
 BIN := $(abspath $(VENV))/bin
 export PATH := $(BIN):$(PATH)
 export DVC_NO_ANALYTICS := 1
+# Small (N, 3) @ (3, 3) products are slower on several BLAS threads than on one, much slower on a busy
+# machine; the stages parallelise where it pays (rendering workers, JAX devices) instead.
+export OPENBLAS_NUM_THREADS := 1
 ifneq ($(DATA),)
 export TACTILE6D_DATA := $(abspath $(DATA))
 endif
