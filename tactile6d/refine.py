@@ -12,8 +12,9 @@ with q_i = T^-1 s_i the contact point in the object frame, u_i = R^T n_i the con
 and (c_i, m_i) the surface sample (point, outward face normal) matched to sensor i: among the ``k``
 samples nearest q_i, the one minimising ||q_i - c||^2 + normal_weight^2 ||u_i - m||^2 (so that a
 contact near an edge matches the face the sensor presses, not the one around the corner). Each
-iteration re-matches, then takes one damped Gauss-Newton (Levenberg-Marquardt) step on SE(3),
-``T <- T [exp(omega^), v]``; all poses are refined together, vectorised. The surface is a dense,
+iteration re-matches, then takes one damped, robustly weighted (Cauchy, 2 mm and 10 deg) Gauss-Newton step on SE(3), ``T <- T [exp(omega^), v]``
+(a weak prior anchoring the pose to its start keeps directions the contacts leave free in place;
+each step is clipped to 5 mm and 5 deg); all poses are refined together, vectorised. The surface is a dense,
 fixed, area-uniform sample with face normals (``contact.sample_surface``, 1 mm spacing).
 
 Three contact points alone leave three degrees of freedom (each point-to-plane residual is one
@@ -31,10 +32,19 @@ import numpy as np
 
 from tactile6d.geometry import make_pose, rotvec_to_rotmat, skew
 
-# Relative Levenberg-Marquardt damping added to the diagonal of J^T J (plus a tiny absolute floor),
-# enough to keep steps bounded when the points alone leave directions free.
-_DAMPING = 1e-3
-_DAMPING_FLOOR = 1e-12
+# A prior anchoring each pose to its start: each metre of accumulated translation counts as a
+# residual of _PRIOR_T metres, each radian of rotation as _PRIOR_R metres. Directions the contacts
+# leave free (contacts on two opposite faces and a third let the object slide along them) then stay
+# where the database fit put them instead of drifting.
+_PRIOR_T = 0.05
+_PRIOR_R = 0.001
+# Each step is clipped to this much translation (m) and rotation (rad): refinement corrects the few
+# millimetres and degrees of a database fit; it is not a global search.
+_MAX_STEP_T = 0.005
+_MAX_STEP_R = np.radians(5.0)
+# Scales of the robust weights: point-to-plane residual (m), normal difference (~ rad).
+_ROBUST_DISTANCE = 0.002
+_ROBUST_ANGLE = np.radians(10.0)
 
 
 def _match(surface, q: np.ndarray, u: np.ndarray, normal_weight: float, k: int):
@@ -67,7 +77,7 @@ def refine_poses(
     n_iterations: int = 8,
     normal_weight: float = 0.01,
     offset: float = 0.0,
-    k: int = 8,
+    k: int = 32,
 ) -> np.ndarray:
     """Refine poses (P, 4, 4) so the sensors touch the surface (module docstring) -> (P, 4, 4).
 
@@ -84,23 +94,31 @@ def refine_poses(
     if n_poses == 0:
         return T
     w = float(normal_weight)
+    prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
+    moved = np.zeros((n_poses, 6))  # accumulated steps (local frame, first order)
     for _ in range(int(n_iterations)):
         q, u = _local(T, s, n)
         c, m = _match(surface, q, u, w, k)
         # Point-to-plane rows: r = m.(q - c) - offset, dr/dv = -m, dr/domega = m x q.
         r_d = np.sum(m * (q - c), axis=-1) - offset  # (P, L)
         J_d = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, L, 6)
-        JtJ = np.einsum("pla,plb->pab", J_d, J_d)
-        Jtr = np.einsum("pla,pl->pa", J_d, r_d)
+        # Robust (Cauchy) weights: a contact matched to the wrong facet (a rounded edge of a scanned
+        # mesh) must not drag the pose; IRLS weights 1 / (1 + (r / scale)^2).
+        rho_d = 1.0 / (1.0 + (r_d / _ROBUST_DISTANCE) ** 2)
+        JtJ = np.einsum("pl,pla,plb->pab", rho_d, J_d, J_d)
+        Jtr = np.einsum("pl,pla,pl->pa", rho_d, J_d, r_d)
         if w > 0:
             # Normal rows: r = w (u - m), dr/domega = w [u]x (u' = u + u x omega), dr/dv = 0.
             r_n = w * (u - m)  # (P, L, 3)
             J_n = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
-            JtJ[:, 3:, 3:] += np.einsum("plia,plib->pab", J_n, J_n)
-            Jtr[:, 3:] += np.einsum("plia,pli->pa", J_n, r_n)
-        diag = np.einsum("paa->pa", JtJ)
-        JtJ = JtJ + (_DAMPING * diag + _DAMPING_FLOOR)[:, :, None] * np.eye(6)
-        step = -np.linalg.solve(JtJ, Jtr[..., None])[..., 0]
+            rho_n = 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+            JtJ[:, 3:, 3:] += np.einsum("pl,plia,plib->pab", rho_n, J_n, J_n)
+            Jtr[:, 3:] += np.einsum("pl,plia,pli->pa", rho_n, J_n, r_n)
+        step = -np.linalg.solve(JtJ + prior, (Jtr + moved @ prior)[..., None])[..., 0]
+        for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
+            norm = np.linalg.norm(step[:, part], axis=1, keepdims=True)
+            step[:, part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+        moved += step
         T = T @ make_pose(rotvec_to_rotmat(step[:, 3:]), step[:, :3])
     return T
 
@@ -112,7 +130,7 @@ def surface_losses(
     sensor_normals: np.ndarray,
     normal_weight: float = 0.01,
     offset: float = 0.0,
-    k: int = 8,
+    k: int = 32,
 ) -> tuple[np.ndarray, np.ndarray]:
     """How well each pose (P, 4, 4) makes the sensors touch the surface -> (distance (P,) m, angle (P,) rad):
     the mean over sensors of |point-to-plane residual| and of the angle between the contact normal and
