@@ -32,6 +32,8 @@ def main(argv: list[str] | None = None) -> int:
     selected = read_artifact(run / "tuples.h5", "tuples")
     names, objects = selected["names"], selected["objects"]
     points_of = {name: est.load_surface_points(artifacts, name) for name in sorted(set(objects))}
+    normals_of = {name: est.load_surface_normals(artifacts, name) if settings.normal_weight > 0 else None
+                  for name in sorted(set(objects))}
 
     poses, losses, tuple_index = [], [], []
     seconds = np.zeros(len(names))
@@ -43,7 +45,8 @@ def main(argv: list[str] | None = None) -> int:
             tuple_index.append(np.zeros(0))
             continue
         t0 = time.perf_counter()
-        hypotheses = est.optimize(points_of[objects[s]], selected["T_world_sensors"][s], tuples, settings)
+        hypotheses = est.optimize(points_of[objects[s]], selected["T_world_sensors"][s], tuples, settings,
+                                  normals_of[objects[s]])
         seconds[s] = time.perf_counter() - t0
         poses.append(hypotheses.poses)
         losses.append(hypotheses.losses)

@@ -30,6 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     hyp = read_artifact(run / "hypotheses.h5", "hypotheses")
     names, objects, T_world_sensors = hyp["names"], hyp["objects"], hyp["T_world_sensors"]
     models = {name: PenetrationModel(est.load_pieces(artifacts, name)) for name in sorted(set(objects))}
+    surfaces = {name: est.load_refine_surface(artifacts, name) if settings.refine else None
+                for name in sorted(set(objects))}
 
     n_scenes, n_sensors, k = len(names), T_world_sensors.shape[1], int(settings.top_k)
     poses = np.full((n_scenes, k, 4, 4), np.nan)
@@ -44,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
         candidates, losses_in = est.expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows],
                                                       hyp["losses"][rows])
         t0 = time.perf_counter()
-        ranked = est.rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings)
+        ranked = est.rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings, surfaces[objects[s]])
         seconds[s] = time.perf_counter() - t0
         n = n_poses[s] = len(ranked.poses)
         poses[s, :n], scores[s, :n], losses[s, :n], penetrations[s, :n] = (

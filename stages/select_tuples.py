@@ -28,24 +28,26 @@ from tactile6d.scenes import scene_set_from_artifact
 class Database:
     """Each object's points and latent angles, loaded once; the autoencoder, loaded once (method ours)."""
 
-    def __init__(self, cfg, ours: bool):
+    def __init__(self, cfg, ours: bool, normals: bool = False):
         self.artifacts = cfg.paths.artifacts_dir
         self.ours = ours
+        self.normals = normals
         if ours:
             self.model, self.norm, _ = load_checkpoint(layout.ae_checkpoint(self.artifacts))
             self.background = est.load_background(cfg)
         self._cache = {}
 
     def __getitem__(self, name: str):
-        """-> (points (M, 3), database angles (M,) or None, encoder or None)."""
+        """-> (points (M, 3), database angles (M,) or None, encoder or None, normals (M, 3) or None)."""
         if name not in self._cache:
             points = est.load_surface_points(self.artifacts, name)
+            normals = est.load_surface_normals(self.artifacts, name) if self.normals else None
             if self.ours:
                 angles, latent_nc = est.load_database_angles(self.artifacts, name)
                 encoder = est.LatentAngleEncoder(self.model, self.norm, self.background, latent_nc)
-                self._cache[name] = (points, angles, encoder)
+                self._cache[name] = (points, angles, encoder, normals)
             else:
-                self._cache[name] = (points, None, None)
+                self._cache[name] = (points, None, None, normals)
         return self._cache[name]
 
 
@@ -55,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes"))
     n_scenes, n_sensors = scenes.T_world_sensors.shape[:2]
-    database = Database(cfg, settings.method == "ours")
+    database = Database(cfg, settings.method == "ours", settings.uses_normals)
 
     tuples, errors = [], []
     angles = np.full((n_scenes, n_sensors), np.nan)
@@ -67,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     seconds = np.zeros((n_scenes, 2))
     failure = [""] * n_scenes
     for s in tqdm(range(n_scenes), desc=f"select_tuples {args.scene_set}/{args.method}", unit="scene"):
-        points, db_angles, encoder = database[str(scenes.objects[s])]
+        points, db_angles, encoder, normals = database[str(scenes.objects[s])]
         T = est.check_sensor_poses(scenes.T_world_sensors[s])
         t0 = time.perf_counter()
         if encoder is not None:
@@ -75,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         t1 = time.perf_counter()
         seconds[s, 0] = t1 - t0
         try:
-            chosen = est.select(points, db_angles, T, angles[s], settings)
+            chosen = est.select(points, db_angles, T, angles[s], settings, normals)
         except InputError as exc:
             # A scene that matches nothing is a failed estimate, not a failed pipeline.
             failure[s] = str(exc)

@@ -35,11 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from tactile6d import collision, layout, ranking, selection
+from tactile6d import refine as refinement
 from tactile6d import optimize as optimization
 from tactile6d.errors import ArtifactError, ConfigError, DataError, InputError
 from tactile6d.geometry import is_rotation, make_pose, rotmat_to_rotvec, rotvec_to_rotmat
 from tactile6d.io import TACTILE_IMAGE_SHAPE, Schema, read_artifact, register_schema
-from tactile6d.sensor import contact_points
+from tactile6d.sensor import contact_normals, contact_points
 
 METHODS = ("ours", "baseline")
 SOLVERS = ("fast", "gd")
@@ -92,13 +93,29 @@ class SelectSettings:
     delta_d_up: float
     delta_d_max: float
     seed: int
+    delta_d_rule: str
+    normal_tol_deg: float | None
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> SelectSettings:
         out = cls(**_fields(section, cls))
         if out.method not in METHODS:
             raise ConfigError(f"select.method must be one of {', '.join(METHODS)}, not {out.method!r}")
+        if out.delta_d_rule not in selection.DELTA_D_RULES:
+            raise ConfigError(f"select.delta_d_rule must be one of {', '.join(selection.DELTA_D_RULES)}, "
+                              f"not {out.delta_d_rule!r}")
+        if out.normal_tol_deg is not None and not out.normal_tol_deg > 0:
+            raise ConfigError(f"select.normal_tol_deg must be null (off) or > 0, got {out.normal_tol_deg}")
         return out
+
+    @property
+    def uses_normals(self) -> bool:
+        return self.normal_tol_deg is not None
+
+
+def needs_normals(settings: Settings) -> bool:
+    """Whether the database normals are read: normal-consistent selection or the orientation-aware loss."""
+    return settings.select.uses_normals or settings.optimize.normal_weight > 0
 
 
 @dataclass(frozen=True)
@@ -115,12 +132,16 @@ class OptimizeSettings:
     precision: str
     cpu_devices: int
     seed: int
+    normal_weight: float
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> OptimizeSettings:
         out = cls(**_fields(section, cls))
         if out.solver not in SOLVERS:
             raise ConfigError(f"optimize.solver must be one of {', '.join(SOLVERS)}, not {out.solver!r}")
+        if out.normal_weight < 0 or (out.normal_weight > 0 and out.solver != "fast"):
+            raise ConfigError(f"optimize.normal_weight must be >= 0, and > 0 only with solver fast; got "
+                              f"{out.normal_weight} with {out.solver!r}")
         return out
 
 
@@ -132,12 +153,20 @@ class RankSettings:
     dedup_translation: float
     dedup_rotation: float
     batch: int
+    refine: bool
+    refine_candidates: int
+    refine_iterations: int
+    refine_normal_weight: float
+    refine_offset: float
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> RankSettings:
         out = cls(**_fields(section, cls))
         if out.top_k < 1 or out.batch < 1:
             raise ConfigError(f"rank.top_k and rank.batch must be >= 1, got {out.top_k}, {out.batch}")
+        if out.refine and (out.refine_candidates < out.top_k or out.refine_iterations < 1 or out.refine_normal_weight < 0):
+            raise ConfigError("rank.refine needs refine_candidates >= top_k, refine_iterations >= 1 and "
+                              "refine_normal_weight >= 0")
         return out
 
 
@@ -229,14 +258,22 @@ def select(
     T_world_sensors: np.ndarray,
     angles: np.ndarray | None,
     settings: SelectSettings,
+    normals: np.ndarray | None = None,
 ) -> Selection:
     """Tactile then distance selection (DESIGN §1 steps 4, 5; step 8 for method 'baseline').
 
     points (M, 3) database points (object frame, m); db_angles (M,) their latent angles (rad; unused
     by the baseline); T_world_sensors (L, 4, 4); angles (L,) the sensors' latent angles (rad; unused by
-    the baseline).
+    the baseline); normals (M, 3) the points' outward normals, needed when ``select.normal_tol_deg``
+    is set (normal-consistent tuples only).
     """
     n_sensors = T_world_sensors.shape[0]
+    check = None
+    if settings.uses_normals:
+        if normals is None:
+            raise InputError("select.normal_tol_deg is set: the database normals are needed")
+        check = selection.NormalCheck(np.asarray(normals, dtype=np.float64), contact_normals(T_world_sensors),
+                                      float(np.radians(settings.normal_tol_deg)))
     if settings.method == "ours":
         if db_angles is None or angles is None:
             raise InputError("method 'ours' needs the database's and the images' latent angles")
@@ -262,6 +299,8 @@ def select(
         step_up=float(settings.delta_d_up),
         delta_max=float(settings.delta_d_max),
         rng=np.random.default_rng(settings.seed),
+        rule=str(settings.delta_d_rule),
+        normals=check,
     )
     return Selection(
         tuples=chosen.tuples,
@@ -275,9 +314,16 @@ def select(
 
 
 def optimize(
-    points: np.ndarray, T_world_sensors: np.ndarray, tuples: np.ndarray, settings: OptimizeSettings
+    points: np.ndarray,
+    T_world_sensors: np.ndarray,
+    tuples: np.ndarray,
+    settings: OptimizeSettings,
+    normals: np.ndarray | None = None,
 ) -> optimization.PoseHypotheses:
-    """Pose hypotheses for the tuples (DESIGN §1 step 6): (P, 4, 4) poses, (P,) losses (m), tuple index."""
+    """Pose hypotheses for the tuples (DESIGN §1 step 6): (P, 4, 4) poses, (P,) losses (m), tuple index.
+
+    normals (M, 3): the database normals, needed when ``optimize.normal_weight`` > 0.
+    """
     return optimization.tuples_to_poses(
         points,
         contact_points(T_world_sensors),
@@ -291,6 +337,9 @@ def optimize(
         n_translations=int(settings.n_translations),
         n_irls=int(settings.n_irls),
         precision=str(settings.precision),
+        normals=normals,
+        sensor_normals=contact_normals(T_world_sensors),
+        normal_weight=float(settings.normal_weight),
     )
 
 
@@ -300,17 +349,27 @@ def rank(
     poses: np.ndarray,
     losses: np.ndarray,
     settings: RankSettings,
+    surface=None,
 ) -> ranking.RankedPoses:
     """The top-k distinct poses by loss + deepest sensor penetration (DESIGN §1 step 7).
 
     model: the object's PenetrationModel; poses (P, 4, 4) ``T_world_object``; losses (P,) m.
+
+    With ``rank.refine`` (not in the paper; ``tactile6d.refine``): the best ``refine_candidates``
+    distinct poses are ranked as above, each is refined against ``surface`` (the object's
+    ``contact.SurfaceSamples``, required then), and the refined poses are ranked again by
+    ``d + refine_normal_weight * a + deepest penetration``, d and a the refined pose's mean
+    point-to-plane residual (m) and normal angle (rad) (``refine.surface_losses``); ``losses`` of
+    the result are then ``d + refine_normal_weight * a``.
     """
     pieces = model.pieces
-    return ranking.rank_poses(
+    if settings.refine and surface is None:
+        raise InputError("rank.refine needs the object's surface samples")
+    first = ranking.rank_poses(
         poses,
         losses,
         partial(collision.poses_to_penetrations, model, T_world_sensor=T_world_sensors),
-        top_k=int(settings.top_k),
+        top_k=int(settings.refine_candidates if settings.refine else settings.top_k),
         tol_translation=float(settings.dedup_translation),
         tol_rotation=float(np.radians(settings.dedup_rotation)),
         depth_bounds=(
@@ -319,6 +378,21 @@ def rank(
         ),
         batch=int(settings.batch),
     )
+    if not settings.refine:
+        return first
+    s, n = contact_points(T_world_sensors), contact_normals(T_world_sensors)
+    w, offset = float(settings.refine_normal_weight), float(settings.refine_offset)
+    refined = refinement.refine_poses(surface, first.poses, s, n, int(settings.refine_iterations), w, offset)
+    distance, angle = refinement.surface_losses(surface, refined, s, n, w, offset)
+    new_losses = distance + w * angle
+    depths = collision.poses_to_penetrations(model, refined, T_world_sensors)
+    scores = new_losses + depths.max(axis=1)
+    kept = ranking.distinct_in_order(
+        refined, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
+        float(np.radians(settings.dedup_rotation)), int(settings.top_k),
+    )
+    return ranking.RankedPoses(refined[kept], scores[kept], new_losses[kept], depths[kept], first.index[kept],
+                               first.n_scored + len(refined))
 
 
 def compact_hypotheses(poses: np.ndarray, losses: np.ndarray) -> dict[str, np.ndarray]:
@@ -359,11 +433,29 @@ def load_surface_points(artifacts_dir: str | Path, name: str) -> np.ndarray:
     return np.asarray(read_artifact(path, "surface")["points"], dtype=np.float64)
 
 
+def load_surface_normals(artifacts_dir: str | Path, name: str) -> np.ndarray:
+    """The database points' outward unit normals (M, 3), object frame (stage sample_surface)."""
+    path = _require(layout.surface_file(artifacts_dir, name), "sample_surface", name)
+    return np.asarray(read_artifact(path, "surface")["normals"], dtype=np.float64)
+
+
 def load_database_angles(artifacts_dir: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
     """The database images' latent angles (M,) rad and the no-contact latent (128,) (stage encode_database)."""
     path = _require(layout.latents_file(artifacts_dir, name), "encode_database", name)
     art = read_artifact(path, "latents")
     return np.asarray(art["angles"], dtype=np.float64), np.asarray(art["latent_nc"], dtype=np.float32)
+
+
+def load_refine_surface(artifacts_dir: str | Path, name: str):
+    """The object's clean mesh (stage prepare_object) as ``contact.SurfaceSamples`` (1 mm samples with
+    face normals), the surface ``rank.refine`` fits the sensors' contacts to."""
+    import trimesh
+
+    from tactile6d.contact import sample_surface
+
+    path = _require(layout.object_file(artifacts_dir, name), "prepare_object", name)
+    art = read_artifact(path, "object")
+    return sample_surface(trimesh.Trimesh(np.asarray(art["vertices"]), np.asarray(art["faces"]), process=False))
 
 
 def load_pieces(artifacts_dir: str | Path, name: str) -> collision.ConvexPieces:
@@ -478,7 +570,9 @@ class Estimator:
     (``collision.ConvexPieces``, or a sequence of (V, 3) vertex arrays); db_angles (M,) the database
     images' latent angles (rad) and encoder: images (L, 320, 240, 3) uint8 RGB -> (L,) latent angles,
     both needed by method 'ours' only; settings: the select/optimize/rank config (``Settings``), by
-    default conf/'s.
+    default conf/'s; normals (M, 3) the database points' outward normals, needed by
+    ``select.normal_tol_deg`` and ``optimize.normal_weight``; surface: the object's surface samples
+    (``contact.SurfaceSamples``, or a ``trimesh.Trimesh`` to sample), needed by ``rank.refine``.
     """
 
     def __init__(
@@ -488,6 +582,8 @@ class Estimator:
         db_angles: np.ndarray | None = None,
         encoder: Callable[[np.ndarray], np.ndarray] | None = None,
         settings: Settings | None = None,
+        normals: np.ndarray | None = None,
+        surface=None,
     ):
         self.settings = settings if settings is not None else Settings.from_cfg(_default_cfg())
         self.points = np.asarray(points, dtype=np.float64)
@@ -501,6 +597,20 @@ class Estimator:
             raise InputError("select.method=ours needs the database angles and an image encoder")
         self.db_angles = db_angles
         self.encoder = encoder
+        if normals is not None:
+            normals = np.asarray(normals, dtype=np.float64)
+            if normals.shape != self.points.shape:
+                raise InputError(f"{normals.shape} database normals for {self.points.shape[0]} points")
+        if needs_normals(self.settings) and normals is None:
+            raise InputError("select.normal_tol_deg / optimize.normal_weight need the database normals")
+        self.normals = normals
+        if surface is not None and not hasattr(surface, "tree"):
+            from tactile6d.contact import sample_surface
+
+            surface = sample_surface(surface)
+        if self.settings.rank.refine and surface is None:
+            raise InputError("rank.refine needs the object's surface (a mesh or contact.SurfaceSamples)")
+        self.surface = surface
         if not isinstance(pieces, collision.ConvexPieces):
             pieces = collision.vertices_to_pieces(list(pieces))
         self.penetration_model = collision.PenetrationModel(pieces)
@@ -530,7 +640,9 @@ class Estimator:
             encoder = LatentAngleEncoder.from_checkpoint(
                 layout.ae_checkpoint(artifacts_dir), load_background(cfg, data_dir), latent_nc
             )
-        return cls(points, pieces, db_angles, encoder, settings)
+        normals = load_surface_normals(artifacts_dir, object_name) if needs_normals(settings) else None
+        surface = load_refine_surface(artifacts_dir, object_name) if settings.rank.refine else None
+        return cls(points, pieces, db_angles, encoder, settings, normals, surface)
 
     # Each step is public so that a caller can run, time or inspect it alone.
 
@@ -543,17 +655,19 @@ class Estimator:
 
     def select(self, T_world_sensors, angles: np.ndarray | None = None) -> Selection:
         """Candidate tuples for the sensors at T_world_sensors (L, 4, 4), given the images' angles (L,)."""
-        return select(self.points, self.db_angles, check_sensor_poses(T_world_sensors), angles, self.settings.select)
+        return select(self.points, self.db_angles, check_sensor_poses(T_world_sensors), angles, self.settings.select,
+                      self.normals)
 
     def optimize(self, T_world_sensors, tuples: np.ndarray) -> optimization.PoseHypotheses:
         """Pose hypotheses for tuples (T, L) of database indices."""
-        return optimize(self.points, check_sensor_poses(T_world_sensors), tuples, self.settings.optimize)
+        return optimize(self.points, check_sensor_poses(T_world_sensors), tuples, self.settings.optimize, self.normals)
 
     def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray) -> ranking.RankedPoses:
         """The top-k distinct poses of (P, 4, 4) hypotheses with losses (P,), rounded first to the form
         the optimize stage stores (``compact_hypotheses``), so that online and offline rank alike."""
         poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
-        return rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses, self.settings.rank)
+        return rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses, self.settings.rank,
+                    self.surface)
 
     def estimate(self, T_world_sensors, images=None) -> Estimate:
         """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.
@@ -571,11 +685,11 @@ class Estimator:
         seconds["encode"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        chosen = select(self.points, self.db_angles, T, angles, self.settings.select)
+        chosen = select(self.points, self.db_angles, T, angles, self.settings.select, self.normals)
         seconds["select"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        hypotheses = optimize(self.points, T, chosen.tuples, self.settings.optimize)
+        hypotheses = optimize(self.points, T, chosen.tuples, self.settings.optimize, self.normals)
         seconds["optimize"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()

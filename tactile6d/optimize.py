@@ -24,6 +24,18 @@ rotation that aligns R0 (p_2 - p_1) with s_2 - s_1, centre the residuals, E = | 
 ||p_2 - p_1|| | / 2, the least any pose can reach by the triangle inequality). So the random rotation
 keeps its role: one hypothesis per tuple, spread over the rotations the contacts allow.
 
+Orientation-aware fast solver (``optimize.normal_weight`` lambda > 0, m/rad; not in the paper): each
+sensor's contact normal m_i (world, its -x axis) should be the rotated database normal R n_ij, so the
+loss gains a term of plain distances between unit vectors::
+
+    E_n(T) = 1/L sum_i || s_i - (R p_ij + t) || + lambda/L sum_i || m_i - R n_ij ||
+
+and the IRLS solves weighted Kabsch problems whose cross-covariance adds lambda-weighted normal
+pairs (translation from the weighted point centroids as before). For L = 2 the normals fix the
+rotation the points leave free (start: the unit-weight combined Kabsch); for L = 1 the random
+rotation is turned by the smallest rotation that carries R0 n onto m, t = s - R p. The reported loss
+is E_n, so the ranking prefers hypotheses whose normals agree.
+
 Both return ``PoseHypotheses``: poses (P, 4, 4) float64, losses (P,) m, tuple_index (P,).
 
 Measured (synthetic: points on a 10 x 6 x 16 cm box, random poses, correspondences with 1-3 mm noise,
@@ -96,17 +108,29 @@ def _check(object_points: np.ndarray, sensor_points: np.ndarray):
 # --- fast solver ---------------------------------------------------------------------------------
 
 
-def weighted_kabsch(object_points: np.ndarray, sensor_points: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """The pose minimising sum_i w_i ||s_i - (R p_i + t)||^2.
+def weighted_kabsch(
+    object_points: np.ndarray,
+    sensor_points: np.ndarray,
+    weights: np.ndarray,
+    directions: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """The pose minimising sum_i w_i ||s_i - (R p_i + t)||^2 (+ sum_i v_i ||m_i - R n_i||^2).
 
     object_points (N, L, 3), sensor_points (L, 3) or (N, L, 3), weights (N, L) >= 0 -> (N, 4, 4).
-    L >= 3 non-collinear points; a reflection in the SVD solution is turned into a rotation.
+    directions: optional (n (N, L, 3) object-frame unit vectors, m (L, 3) or (N, L, 3) world unit
+    vectors, v (N, L) >= 0 weights), which only enter the rotation. Without them L >= 3
+    non-collinear points; a reflection in the SVD solution is turned into a rotation.
     """
-    w = weights / weights.sum(axis=1, keepdims=True)
+    total = weights.sum(axis=1, keepdims=True)
+    w = weights / total
     s = np.broadcast_to(sensor_points, object_points.shape)
     p_mean = np.einsum("nl,nla->na", w, object_points)
     s_mean = np.einsum("nl,nla->na", w, s)
     cov = np.einsum("nl,nla,nlb->nab", w, s - s_mean[:, None], object_points - p_mean[:, None])
+    if directions is not None:
+        n_obj, m_world, v = directions
+        m_world = np.broadcast_to(m_world, n_obj.shape)
+        cov = cov + np.einsum("nl,nla,nlb->nab", v / total, m_world, n_obj)
     u, _, vt = np.linalg.svd(cov)
     d = np.sign(np.linalg.det(u @ vt))
     d = np.where(d == 0, 1.0, d)
@@ -132,17 +156,49 @@ def _align_two(object_points: np.ndarray, sensor_points: np.ndarray, rotations: 
     return make_pose(R, t)
 
 
+def _minimal_turn(rotations: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """rotations (N, 3, 3), u (N, 3) object-frame vectors, v (N, 3) world vectors -> (N, 3, 3): each
+    rotation turned by the smallest rotation carrying R u onto v (a half turn about a perpendicular
+    axis when antiparallel)."""
+    u = np.einsum("nab,nb->na", rotations, u)
+    v = np.broadcast_to(v, u.shape)
+    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    v = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+    axis = np.cross(u, v)
+    sin, cos = np.linalg.norm(axis, axis=1), np.sum(u * v, axis=1)
+    perpendicular = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    axis = np.where((sin < 1e-12)[:, None] & (cos < 0)[:, None], perpendicular, axis)
+    norm = np.linalg.norm(axis, axis=1, keepdims=True)
+    rotvec = np.where(norm > 1e-300, axis / np.maximum(norm, 1e-300), 0.0) * np.arctan2(sin, cos)[:, None]
+    return rotvec_to_rotmat(rotvec) @ rotations
+
+
+def normal_losses(poses: np.ndarray, object_normals: np.ndarray, sensor_normals: np.ndarray) -> np.ndarray:
+    """poses (P, 4, 4), object_normals (P, L, 3), sensor_normals (L, 3) -> (P,) 1/L sum_i ||m_i - R n_i||."""
+    turned = np.einsum("pab,plb->pla", np.asarray(poses)[:, :3, :3], object_normals)
+    return np.linalg.norm(sensor_normals[None] - turned, axis=-1).mean(axis=-1)
+
+
 def fit_fast(
-    object_points: np.ndarray, sensor_points: np.ndarray, rotations: np.ndarray, n_irls: int
+    object_points: np.ndarray,
+    sensor_points: np.ndarray,
+    rotations: np.ndarray,
+    n_irls: int,
+    normals: tuple[np.ndarray, np.ndarray] | None = None,
+    normal_weight: float = 0.0,
 ) -> PoseHypotheses:
     """The fast solver (module docstring), one pose per tuple.
 
     object_points (N, L, 3) object frame, sensor_points (L, 3) world, rotations (N, 3, 3) the tuples'
-    random rotations (used for L < 3 only), n_irls IRLS steps (L >= 3) -> PoseHypotheses with P = N.
+    random rotations (used for L < 3 only, L = 1 with normals), n_irls IRLS steps (L >= 3, or L = 2
+    with normals) -> PoseHypotheses with P = N. normals: (object normals (N, L, 3), sensor contact
+    normals (L, 3)) and normal_weight lambda (m/rad) > 0 switch on the orientation-aware loss E_n.
     """
     p, s = _check(object_points, sensor_points)
     n, n_sensors = p.shape[:2]
     rotations = np.asarray(rotations, dtype=np.float64)
+    if normals is not None and normal_weight > 0:
+        return _fit_fast_normals(p, s, rotations, n_irls, normals, float(normal_weight))
     if n_sensors == 1:
         poses = make_pose(rotations, s[0] - np.einsum("nab,nb->na", rotations, p[:, 0]))
     elif n_sensors == 2:
@@ -153,6 +209,29 @@ def fit_fast(
             residual = np.linalg.norm(s[None] - (np.einsum("nab,nlb->nla", poses[:, :3, :3], p) + poses[:, None, :3, 3]), axis=-1)
             poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, _IRLS_FLOOR))
     return PoseHypotheses(poses, poses_to_losses(poses, p, s), np.arange(n))
+
+
+def _fit_fast_normals(p, s, rotations, n_irls, normals, lam) -> PoseHypotheses:
+    """fit_fast with the normal term (module docstring)."""
+    n_obj = np.asarray(normals[0], dtype=np.float64)
+    m = np.asarray(normals[1], dtype=np.float64)
+    n, n_sensors = p.shape[:2]
+    if n_obj.shape != p.shape or m.shape != s.shape:
+        raise InputError(f"normals must be (N, L, 3) and (L, 3) like the points, got {n_obj.shape}, {m.shape}")
+    if n_sensors == 1:
+        R = _minimal_turn(rotations, n_obj[:, 0], np.broadcast_to(m[0], (n, 3)))
+        poses = make_pose(R, s[0] - np.einsum("nab,nb->na", R, p[:, 0]))
+    else:
+        ones = np.ones((n, n_sensors))
+        poses = weighted_kabsch(p, s, ones, (n_obj, m, lam * ones))
+        for _ in range(n_irls):
+            residual = np.linalg.norm(s[None] - (np.einsum("nab,nlb->nla", poses[:, :3, :3], p) + poses[:, None, :3, 3]), axis=-1)
+            turned = np.linalg.norm(m[None] - np.einsum("nab,nlb->nla", poses[:, :3, :3], n_obj), axis=-1)
+            # The normal term's IRLS weight lambda / ||m - R n|| (a unitless residual, floored alike).
+            poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, _IRLS_FLOOR),
+                                    (n_obj, m, lam / np.maximum(turned, _IRLS_FLOOR)))
+    losses = poses_to_losses(poses, p, s) + lam * normal_losses(poses, n_obj, m)
+    return PoseHypotheses(poses, losses, np.arange(n))
 
 
 # --- faithful solver (JAX) -----------------------------------------------------------------------
@@ -290,13 +369,17 @@ def tuples_to_poses(
     n_translations: int = 15,
     n_irls: int = 5,
     precision: str = "float32",
+    normals: np.ndarray | None = None,
+    sensor_normals: np.ndarray | None = None,
+    normal_weight: float = 0.0,
 ) -> PoseHypotheses:
     """Pose hypotheses for the selected tuples.
 
     points (M, 3) database points (object frame, m), sensor_points (L, 3) sensor contact points (world,
     m), tuples (N, L) int indices into points, solver 'fast' or 'gd', rng draws one uniformly random
     rotation per tuple. gd uses n_steps, gain_t, gain_r, offset (m), the first n_translations (1-15)
-    of ``initial_translations`` and precision; fast uses n_irls.
+    of ``initial_translations`` and precision; fast uses n_irls and, when normal_weight > 0, normals
+    (M, 3) the database normals and sensor_normals (L, 3) the sensors' contact normals (world).
     """
     tuples = np.asarray(tuples)
     if tuples.ndim != 2 or tuples.shape[0] == 0:
@@ -304,6 +387,11 @@ def tuples_to_poses(
     object_points = np.asarray(points, dtype=np.float64)[tuples]
     rotations = random_rotations(tuples.shape[0], rng)
     if solver == "fast":
+        if normal_weight > 0:
+            if normals is None or sensor_normals is None:
+                raise InputError("optimize.normal_weight > 0 needs the database and sensor normals")
+            pair = (np.asarray(normals, dtype=np.float64)[tuples], np.asarray(sensor_normals, dtype=np.float64))
+            return fit_fast(object_points, sensor_points, rotations, n_irls, pair, normal_weight)
         return fit_fast(object_points, sensor_points, rotations, n_irls)
     if solver == "gd":
         if not 1 <= n_translations <= len(TRANSLATION_DIRECTIONS):

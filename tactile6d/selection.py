@@ -20,6 +20,22 @@ enumerating at ``delta_start`` (8e9 triples for the baseline). When raising by `
 lowest mean error are kept (ties by index order), so memory and the optimiser's time stay bounded,
 and ``DistanceSelection.capped`` says so.
 
+Rule ``best_n`` (``select.delta_d_rule: best_n``, not the paper's): keep exactly the ``n_max`` tuples
+of smallest mean error (ties by index order), whatever threshold that takes. The paper's rule
+usually stops at delta_d = 0.1 mm with a few hundred tuples, while database points are 4-7 mm apart,
+so the tuple of the points nearest the true contacts (error 1-3 mm) is rarely kept. The threshold is
+found by doubling from ``step_up`` then bisecting, each probe a pruned join that stops once it has
+seen more than 4 ``n_max`` tuples; the product is never materialised.
+
+Normal consistency (``select.normal_tol_deg``, optional): each sensor's +x axis is the inward surface
+normal at its contact, so the database normals of a plausible tuple must be carried onto the sensors'
+contact normals by one rotation. A necessary condition checked per sensor pair (a, b) is that the
+three angles of the pair's point-pair feature agree within the tolerance: angle(n_a, n_b),
+angle(n_a, d_ab) and angle(n_b, d_ab), with d_ab the unit vector from a's point to b's, on the
+database side (object frame) and on the sensors' side (world). Pairs that fail are marked in the
+pair tables (pruned in the join), and every surviving tuple is checked again exactly in float64, as the
+brute force does, so both still return the same set.
+
 Step 8, the baseline, is the same with Omega_i = all M points: ``all_points_omegas``.
 
 Measured (2-core machine shared with other jobs, load average 7-8; M = 2000 YCB surface points, L = 3,
@@ -64,6 +80,60 @@ class DistanceSelection:
     errors: np.ndarray
     delta_d: float
     capped: bool
+
+
+@dataclass(frozen=True)
+class NormalCheck:
+    """Normal consistency (module docstring): normals (M, 3) the database points' outward unit normals
+    (object frame), sensor_normals (L, 3) the sensors' contact normals (world, ``sensor.contact_normals``),
+    tol the largest disagreement of a point-pair-feature angle (rad)."""
+
+    normals: np.ndarray
+    sensor_normals: np.ndarray
+    tol: float
+
+
+def pair_feature_angles(p_a, p_b, n_a, n_b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The angles (rad) of a point-pair feature, broadcast over (..., 3) inputs:
+    angle(n_a, n_b), angle(n_a, d), angle(n_b, d) with d = (p_b - p_a) / ||p_b - p_a|| (NaN when the
+    points coincide). Written element by element, like ``pair_distances``, so the same pair gives
+    bit-identical angles whatever the array shapes."""
+    p_a, p_b, n_a, n_b = (np.asarray(x, dtype=np.float64) for x in (p_a, p_b, n_a, n_b))
+    length = pair_distances(p_a, p_b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = [(p_b[..., c] - p_a[..., c]) / length for c in range(3)]
+
+    def dot(u, v):
+        out = u[0] * v[0]
+        out = out + u[1] * v[1]
+        out = out + u[2] * v[2]
+        return np.arccos(np.clip(out, -1.0, 1.0))
+
+    na = [n_a[..., c] for c in range(3)]
+    nb = [n_b[..., c] for c in range(3)]
+    return dot(na, nb), dot(na, d), dot(nb, d)
+
+
+def _pair_consistent(p_a, p_b, n_a, n_b, s_a, s_b, m_a, m_b, tol: float) -> np.ndarray:
+    """Database pair (p, n) against sensor pair (s, m): every feature angle within tol (bool, broadcast)."""
+    ok = None
+    for x, y in zip(pair_feature_angles(p_a, p_b, n_a, n_b), pair_feature_angles(s_a, s_b, m_a, m_b)):
+        good = np.abs(x - y) <= tol  # NaN (coincident points) fails
+        ok = good if ok is None else ok & good
+    return ok
+
+
+def tuples_normal_consistent(points: np.ndarray, sensor_points: np.ndarray, tuples: np.ndarray, check: NormalCheck) -> np.ndarray:
+    """(T,) bool: every sensor pair of each tuple (T, L) passes the point-pair-feature test (module docstring)."""
+    points = np.asarray(points, dtype=np.float64)
+    s = np.asarray(sensor_points, dtype=np.float64)
+    n, m = np.asarray(check.normals, dtype=np.float64), np.asarray(check.sensor_normals, dtype=np.float64)
+    tuples = np.asarray(tuples)
+    ok = np.ones(tuples.shape[0], dtype=bool)
+    for a, b in _pairs(s.shape[0]):
+        ja, jb = tuples[:, a], tuples[:, b]
+        ok &= _pair_consistent(points[ja], points[jb], n[ja], n[jb], s[a], s[b], m[a], m[b], check.tol)
+    return ok
 
 
 def angles_to_omegas(
@@ -172,30 +242,34 @@ def _sorted_rows(tuples: np.ndarray, errors: np.ndarray) -> tuple[np.ndarray, np
 
 
 def tuples_within_brute_force(
-    points: np.ndarray, sensor_points: np.ndarray, omegas, delta_d: float
+    points: np.ndarray, sensor_points: np.ndarray, omegas, delta_d: float, normals: NormalCheck | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Reference for ``tuples_within``: enumerate Omega_1 x ... x Omega_L. Small inputs only.
 
-    Returns tuples (T, L) int64 in lexicographic order with mean error < delta_d, and errors (T,) m.
+    Returns tuples (T, L) int64 in lexicographic order with mean error < delta_d (and, with
+    ``normals``, normal-consistent), and errors (T,) m.
     """
     points, s, omegas = _check_inputs(points, sensor_points, omegas)
     grids = np.meshgrid(*omegas, indexing="ij")
     tuples = np.stack([g.ravel() for g in grids], axis=1)
     errors = tuples_to_errors(points, s, tuples)
     keep = errors < delta_d
+    if normals is not None:
+        keep &= tuples_normal_consistent(points, s, tuples, normals)
     return _sorted_rows(tuples[keep], errors[keep])
 
 
 def tuples_within(
-    points: np.ndarray, sensor_points: np.ndarray, omegas, delta_d: float
+    points: np.ndarray, sensor_points: np.ndarray, omegas, delta_d: float, normals: NormalCheck | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """All tuples of Omega_1 x ... x Omega_L with mean pair error < delta_d, by a pruned join.
 
-    points (M, 3) m, sensor_points (L, 3) m, omegas: L index arrays, delta_d m ->
-    tuples (T, L) int64 in lexicographic order, errors (T,) m. Same result as the brute force.
+    points (M, 3) m, sensor_points (L, 3) m, omegas: L index arrays, delta_d m, normals: the optional
+    normal-consistency test -> tuples (T, L) int64 in lexicographic order, errors (T,) m. Same result
+    as the brute force.
     """
     points, s, omegas = _check_inputs(points, sensor_points, omegas)
-    tuples, errors, _ = _join(points, s, omegas, _PairTables(points, s, omegas), delta_d)
+    tuples, errors, _ = _join(points, s, omegas, _PairTables(points, s, omegas, normals), delta_d)
     return _sorted_rows(tuples, errors)
 
 
@@ -204,18 +278,27 @@ class _PairTables:
 
     ``table[(a, k)]`` (|Omega_a|, |Omega_k|) float32, for each pair a < k: the pair's distance error
     (m), from one distance matrix over the union of the omegas (the baseline's omegas coincide).
-    These only prune; every kept tuple's error is recomputed exactly in float64.
+    These only prune; every kept tuple's error is recomputed exactly in float64. With a NormalCheck,
+    entries of pairs that fail it (by more than a rounding slack) are +inf, so the join never grows them.
     """
 
-    def __init__(self, points: np.ndarray, s: np.ndarray, omegas):
+    def __init__(self, points: np.ndarray, s: np.ndarray, omegas, normals: NormalCheck | None = None):
         union = np.unique(np.concatenate(omegas))
         dist = cdist(points[union], points[union])
+        self.normals = normals
         self.table = {}
         for a, k in _pairs(s.shape[0]):
             rows, cols = np.searchsorted(union, omegas[a]), np.searchsorted(union, omegas[k])
             err = dist[np.ix_(rows, cols)]
             err -= pair_distances(s[a], s[k])
-            self.table[(a, k)] = np.abs(err, out=err).astype(np.float32)
+            table = np.abs(err, out=err).astype(np.float32)
+            if normals is not None:
+                n, m = np.asarray(normals.normals, dtype=np.float64), np.asarray(normals.sensor_normals, dtype=np.float64)
+                ja, jk = omegas[a][:, None], omegas[k][None, :]
+                ok = _pair_consistent(points[ja], points[jk], n[ja], n[jk], s[a], s[k], m[a], m[k],
+                                      normals.tol + _ANGLE_SLACK)
+                table[~ok] = np.inf
+            self.table[(a, k)] = table
 
     def anchor(self, k: int, bound: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """The entries of table (0, k) below ``bound``, sorted by (row, error).
@@ -234,6 +317,8 @@ class _PairTables:
 # float32 tables round each pair error by at most ~3e-8 m; pruning with this much slack (m) can
 # therefore never drop a tuple that the exact float64 check keeps.
 _TABLE_SLACK = 1e-6
+# Tolerance slack (rad) of the tables' normal test: they only prune, the exact test decides.
+_ANGLE_SLACK = 1e-9
 
 
 def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: int | None = None):
@@ -251,6 +336,7 @@ def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: in
         errors = np.zeros(tuples.shape[0])
         keep = errors < delta_d
         return tuples[keep], errors[keep], True
+    check = tables.normals
 
     n_pairs = n_sensors * (n_sensors - 1) // 2
     budget = n_pairs * delta_d + _TABLE_SLACK
@@ -286,6 +372,8 @@ def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: in
             tuples = np.stack([omegas[i][grown[:, i]] for i in range(n_sensors)], axis=1)
             errors = tuples_to_errors(points, s, tuples)
             passed = errors < delta_d
+            if check is not None:
+                passed &= tuples_normal_consistent(points, s, tuples, check)
             found_tuples.append(tuples[passed])
             found_errors.append(errors[passed])
             n_found += int(passed.sum())
@@ -299,6 +387,53 @@ def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: in
     return np.concatenate(found_tuples), np.concatenate(found_errors), True
 
 
+DELTA_D_RULES = ("paper", "best_n")
+
+
+def _lowest(tuples: np.ndarray, errors: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The n lowest errors, ties broken by index order, returned in lexicographic row order."""
+    order = np.lexsort(tuple(tuples.T[::-1]) + (errors,))[:n]
+    return _sorted_rows(tuples[order], errors[order])
+
+
+def _best_n(join, n_max: int, delta_first: float, delta_max: float) -> DistanceSelection:
+    """Rule best_n: the n_max tuples of lowest mean error (< delta_max), ties by index order.
+
+    count(delta) = #tuples with error < delta grows with delta. Doubling from ``delta_first`` finds an
+    upper bracket with at least n_max tuples (or stops at delta_max), bisection then narrows it until
+    a probe holds between n_max and 4 n_max tuples; each probe stops early past 4 n_max.
+    """
+    cap = 4 * n_max
+    lo, delta = 0.0, min(delta_first, delta_max)
+    while True:
+        tuples, errors, complete = join(delta, cap)
+        if not complete or tuples.shape[0] >= n_max:
+            hi = delta
+            break
+        if delta >= delta_max:
+            if tuples.shape[0] == 0:
+                raise InputError(
+                    "no tuple of database points matches the sensors' pairwise distances within "
+                    f"delta_d={delta_max:g} m"
+                )
+            tuples, errors = _sorted_rows(tuples, errors)
+            return DistanceSelection(tuples, errors, float(errors.max()), False)
+        lo, delta = delta, min(2.0 * delta, delta_max)
+    while not complete:
+        if hi - lo < 1e-10:  # a pathological pile of equal errors: take them all, then the lowest
+            tuples, errors, complete = join(hi, None)
+            break
+        mid = 0.5 * (lo + hi)
+        t, e, c = join(mid, cap)
+        if c and t.shape[0] < n_max:
+            lo = mid
+        else:
+            hi, tuples, errors, complete = mid, t, e, c
+    capped = tuples.shape[0] > n_max
+    tuples, errors = _lowest(tuples, errors, n_max)
+    return DistanceSelection(tuples, errors, float(errors.max()), capped)
+
+
 def select_tuples(
     points: np.ndarray,
     sensor_points: np.ndarray,
@@ -309,6 +444,8 @@ def select_tuples(
     step_up: float,
     delta_max: float,
     rng: np.random.Generator,
+    rule: str = "paper",
+    normals: NormalCheck | None = None,
 ) -> DistanceSelection:
     """Distance-based selection with the adaptive threshold (module docstring).
 
@@ -316,7 +453,9 @@ def select_tuples(
     the world (m); omegas: L index arrays (``angles_to_omegas(...).omegas`` or ``all_points_omegas``);
     n_max: the most tuples kept (N); delta_start, step_down, step_up, delta_max in metres; rng: used only
     for L = 1, where every point of Omega_1 is a tuple (error 0) and, if there are more than n_max, a
-    uniformly random n_max of them are kept.
+    uniformly random n_max of them are kept. rule: 'paper' (the adaptive delta_d) or 'best_n' (the
+    n_max tuples of lowest error below delta_max; delta_d is then the largest kept error); normals:
+    the optional normal-consistency test (``NormalCheck``; a test of pairs, so unused for L = 1).
 
     Raises InputError when no tuple passes even at ``delta_max`` (sensors farther apart, or closer,
     than any pair of database points allows).
@@ -324,6 +463,8 @@ def select_tuples(
     points, s, omegas = _check_inputs(points, sensor_points, omegas)
     if n_max < 1 or not (delta_start > 0 and step_down > 0 and step_up > 0 and delta_max >= delta_start):
         raise InputError("need n_max >= 1, positive steps and delta_max >= delta_start > 0")
+    if rule not in DELTA_D_RULES:
+        raise InputError(f"unknown delta_d rule {rule!r} ({' or '.join(DELTA_D_RULES)})")
     if s.shape[0] == 1:
         chosen = omegas[0]
         capped = chosen.size > n_max
@@ -331,10 +472,13 @@ def select_tuples(
             chosen = np.sort(rng.choice(chosen, size=n_max, replace=False))
         return DistanceSelection(chosen[:, None], np.zeros(chosen.size), float(delta_start), capped)
 
-    tables = _PairTables(points, s, omegas)
+    tables = _PairTables(points, s, omegas, normals)
 
     def join(delta, stop_after=n_max):
         return _join(points, s, omegas, tables, delta, stop_after)
+
+    if rule == "best_n":
+        return _best_n(join, n_max, step_up, delta_max)
 
     # The descending grid delta_start - k * step_down, down to its first non-positive value. The
     # reference stops at the first value with at most n_max tuples, which (the count growing with
@@ -372,9 +516,6 @@ def select_tuples(
 
     tuples, errors = found
     capped = tuples.shape[0] > n_max
-    if capped:
-        # The n_max lowest errors, ties broken by index order.
-        order = np.lexsort(tuple(tuples.T[::-1]) + (errors,))[:n_max]
-        tuples, errors = tuples[order], errors[order]
-    tuples, errors = _sorted_rows(tuples, errors)
+    # The n_max lowest errors (all of them when not capped), ties broken by index order.
+    tuples, errors = _lowest(tuples, errors, n_max)
     return DistanceSelection(tuples, errors, float(delta), capped)

@@ -198,3 +198,57 @@ def test_gd_splits_over_two_cpu_devices_with_the_same_result():
     R0 = g.random_rotations(7, rng)
     single = opt.fit_gd(p, s, R0, opt.initial_translations(s, 0.2), 50, 0.01, 1.0, "float64")
     np.testing.assert_allclose(sharded, single.poses, atol=1e-9)
+
+
+# --- orientation-aware fast solver (optimize.normal_weight) ------------------------------------
+
+
+def _normal_scene(rng, n_sensors):
+    """Box points with their face normals (object frame), a true pose, the world points and normals."""
+    p = rng.uniform(-HALF, HALF, (n_sensors, 3))
+    axis = rng.integers(0, 3, n_sensors)
+    sign = np.where(rng.random(n_sensors) < 0.5, -1.0, 1.0)
+    p[np.arange(n_sensors), axis] = sign * HALF[axis]
+    n = np.zeros((n_sensors, 3))
+    n[np.arange(n_sensors), axis] = sign
+    T = g.make_pose(g.random_rotations(1, rng)[0], rng.uniform(-0.3, 0.3, 3))
+    return p, n, g.transform_points(T, p), n @ T[:3, :3].T, T
+
+
+@pytest.mark.parametrize("n_sensors", [2, 3, 4])
+def test_normal_term_recovers_the_pose_that_positions_leave_free(n_sensors):
+    rng = np.random.default_rng(10 + n_sensors)
+    for _ in range(10):
+        p, n, s, m, T = _normal_scene(rng, n_sensors)
+        if n_sensors == 2 and abs(abs(np.dot(n[0], n[1])) - 1) < 1e-9 and abs(np.dot(n[0], p[1] - p[0])) > 0.999 * np.linalg.norm(p[1] - p[0]):
+            continue  # degenerate: both normals along the line through the points
+        fit = opt.fit_fast(p[None], s, g.random_rotations(1, rng), 5, (n[None], m), 0.01)
+        dt, dr = _errors(fit.poses[0], T)
+        assert dt < 1e-3 and dr < 0.1
+        assert fit.losses[0] < 1e-6
+    if n_sensors == 2:
+        # Without the normals the rotation about the line through the two points stays random.
+        plain = opt.fit_fast(p[None], s, g.random_rotations(1, rng), 5)
+        assert _errors(plain.poses[0], T)[1] > 1.0
+
+
+def test_normal_term_with_one_sensor_turns_the_random_rotation_onto_the_normal():
+    rng = np.random.default_rng(3)
+    p, n, s, m, T = _normal_scene(rng, 1)
+    R0 = g.random_rotations(20, rng)
+    fit = opt.fit_fast(np.repeat(p[None], 20, axis=0), s, R0, 5, (np.repeat(n[None], 20, axis=0), m), 0.01)
+    np.testing.assert_allclose(np.einsum("nab,b->na", fit.poses[:, :3, :3], n[0]), np.repeat(m, 20, axis=0), atol=1e-9)
+    np.testing.assert_allclose(fit.poses[:, :3, :3] @ p[0] + fit.poses[:, :3, 3], np.repeat(s, 20, axis=0), atol=1e-12)
+    assert np.all(fit.losses < 1e-9)
+
+
+def test_normal_term_prefers_the_tuple_whose_normals_agree():
+    # Two tuples with the same points (same position loss); one has a flipped normal: its loss is higher.
+    rng = np.random.default_rng(4)
+    p, n, s, m, T = _normal_scene(rng, 3)
+    bad = n.copy()
+    bad[0] *= -1
+    fit = opt.fit_fast(np.stack([p, p]), s, g.random_rotations(2, rng), 5, (np.stack([n, bad]), m), 0.01)
+    assert fit.losses[0] < 1e-6 < 1e-3 < fit.losses[1]
+    with pytest.raises(InputError):
+        opt.tuples_to_poses(p, s, np.array([[0, 1, 2]]), "fast", rng, normal_weight=0.01)

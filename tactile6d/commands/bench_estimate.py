@@ -70,7 +70,7 @@ def time_configuration(estimators: dict[str, Estimator], scenes: list) -> dict[s
 def with_settings(estimator: Estimator, settings: Settings) -> Estimator:
     """The same object's arrays with other settings (no reloading)."""
     return Estimator(estimator.points, estimator.penetration_model.pieces, estimator.db_angles, estimator.encoder,
-                     settings)
+                     settings, estimator.normals, estimator.surface)
 
 
 def main(argv: list[str]) -> int:

@@ -1,0 +1,80 @@
+import numpy as np
+import pytest
+import trimesh
+
+from tactile6d import geometry as g
+from tactile6d import refine
+from tactile6d.contact import sample_surface
+from tactile6d.sensor import contact_normals, contact_points, sensor_poses_touching
+
+
+def _cut_box():
+    """A 10 x 6 x 16 cm box with one corner cut off by a slanted plane."""
+    box = trimesh.creation.box(extents=(0.10, 0.06, 0.16))
+    cut = box.slice_plane([0.03, 0.0, 0.06], -g.rotvec_to_rotmat(np.array([0.0, 0.5, 0.0])) @ [0.0, 0.0, 1.0], cap=True)
+    return cut
+
+
+SURFACES = {}
+
+
+def _surface(name):
+    if name not in SURFACES:
+        mesh = trimesh.creation.box(extents=(0.10, 0.06, 0.16)) if name == "box" else _cut_box()
+        SURFACES[name] = sample_surface(mesh)
+    return SURFACES[name]
+
+
+# Contacts well inside faces: +x face, -y face, +z face (box); the cut face replaces +z on the cut box.
+CONTACTS = {
+    "box": (np.array([[0.05, 0.01, -0.02], [0.0, -0.03, 0.03], [-0.02, 0.0, 0.08]]),
+            np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]])),
+}
+
+
+def _cut_contacts(surface):
+    """Three contacts on the cut box: the cut face, the -x face and the -y face."""
+    normals = surface.normals
+    cut = np.flatnonzero((normals[:, 0] > 0.2) & (normals[:, 2] > 0.2))
+    cut_point = surface.points[cut].mean(axis=0)
+    return (np.array([cut_point, [-0.05, 0.01, 0.0], [0.0, -0.03, -0.03]]),
+            np.array([normals[cut[0]], [-1.0, 0, 0], [0, -1.0, 0]]))
+
+
+@pytest.mark.parametrize("name", ["box", "cut_box"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_refinement_recovers_a_slightly_wrong_pose(name, seed):
+    rng = np.random.default_rng(seed)
+    surface = _surface(name)
+    points, normals = CONTACTS["box"] if name == "box" else _cut_contacts(surface)
+    T_true = g.make_pose(g.random_rotations(1, rng)[0], [0.1, 0.0, 0.2])
+    T_sensors = T_true @ sensor_poses_touching(points, normals, rng.uniform(-np.pi, np.pi, 3), 0.002)
+    s, n = contact_points(T_sensors), contact_normals(T_sensors)
+    # Perturb by 2-5 mm and 2-5 deg.
+    axis = rng.normal(size=3)
+    direction = rng.normal(size=3)
+    wrong = T_true @ g.make_pose(g.rotvec_to_rotmat(axis / np.linalg.norm(axis) * np.radians(rng.uniform(2, 5))),
+                                 direction / np.linalg.norm(direction) * rng.uniform(0.002, 0.005))
+    refined = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10, normal_weight=0.01)[0]
+    assert np.linalg.norm(refined[:3, 3] - T_true[:3, 3]) < 5e-4
+    assert np.degrees(g.rotation_angle(refined[:3, :3], T_true[:3, :3])) < 0.5
+    d, a = refine.surface_losses(surface, refined[None], s, n)
+    assert d[0] < 2e-4 and np.degrees(a[0]) < 0.5
+    d0, a0 = refine.surface_losses(surface, wrong[None], s, n)
+    assert a0[0] > a[0]
+
+
+def test_refinement_is_vectorised_over_poses_and_keeps_a_right_pose():
+    rng = np.random.default_rng(5)
+    surface = _surface("box")
+    points, normals = CONTACTS["box"]
+    T_true = g.make_pose(g.random_rotations(1, rng)[0], [0.0, 0.1, 0.3])
+    T_sensors = T_true @ sensor_poses_touching(points, normals, 0.0, 0.002)
+    s, n = contact_points(T_sensors), contact_normals(T_sensors)
+    starts = np.stack([T_true] + [T_true @ g.make_pose(g.rotvec_to_rotmat(rng.normal(scale=0.04, size=3)),
+                                                        rng.normal(scale=0.002, size=3)) for _ in range(6)])
+    out = refine.refine_poses(surface, starts, s, n, n_iterations=10)
+    assert out.shape == starts.shape
+    np.testing.assert_allclose(out[:, :3, 3], np.repeat(T_true[None, :3, 3], 7, axis=0), atol=5e-4)
+    assert np.linalg.norm(out[0, :3, 3] - T_true[:3, 3]) < 1e-6
+    assert refine.refine_poses(surface, np.zeros((0, 4, 4)), s, n).shape == (0, 4, 4)
