@@ -86,11 +86,12 @@ def angle_maps_figure(maps: dict[str, tuple[np.ndarray, np.ndarray]]):
     cols = min(5, n)
     rows = int(np.ceil(n / cols))
     fig = plt.figure(figsize=(3.2 * cols, 3.2 * rows))
+    vmin = min(float(np.min(a)) for _, a in maps.values())
     vmax = max(float(np.max(a)) for _, a in maps.values())
     for k, (name, (points, angles)) in enumerate(maps.items()):
         ax = fig.add_subplot(rows, cols, k + 1, projection="3d")
         mm = points * 1000
-        sc = ax.scatter(*mm.T, c=angles, s=2, cmap="viridis", vmin=0, vmax=vmax)
+        sc = ax.scatter(*mm.T, c=angles, s=2, cmap="viridis", vmin=vmin, vmax=vmax)
         _equal_axes(ax, mm)
         ax.set_title(name, fontsize=8)
         ax.set_xticklabels([])
