@@ -123,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         "### Per object (caddeo2023)",
         "",
         tables["caddeo2023"].read_text() if tables["caddeo2023"].is_file() else "(not run)",
+        "",
         "### Validation scenes (generated; used for tuning)",
         "",
         headline_table(validation, with_paper=False),
