@@ -140,18 +140,7 @@ def weighted_kabsch(
 
 def _align_two(object_points: np.ndarray, sensor_points: np.ndarray, rotations: np.ndarray) -> np.ndarray:
     """L = 2: the pose nearest ``rotations`` (N, 3, 3) reaching the loss's lower bound -> (N, 4, 4)."""
-    u = np.einsum("nab,nb->na", rotations, object_points[:, 1] - object_points[:, 0])
-    v = np.broadcast_to(sensor_points[1] - sensor_points[0], u.shape)
-    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
-    v = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
-    axis = np.cross(u, v)
-    sin, cos = np.linalg.norm(axis, axis=1), np.sum(u * v, axis=1)
-    # Antiparallel: any axis perpendicular to u gives the smallest (half-turn) rotation.
-    perpendicular = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-    axis = np.where((sin < 1e-12)[:, None] & (cos < 0)[:, None], perpendicular, axis)
-    norm = np.linalg.norm(axis, axis=1, keepdims=True)
-    rotvec = np.where(norm > 1e-300, axis / np.maximum(norm, 1e-300), 0.0) * np.arctan2(sin, cos)[:, None]
-    R = rotvec_to_rotmat(rotvec) @ rotations
+    R = _minimal_turn(rotations, object_points[:, 1] - object_points[:, 0], sensor_points[1] - sensor_points[0])
     t = sensor_points.mean(axis=0) - np.einsum("nab,nb->na", R, object_points.mean(axis=1))
     return make_pose(R, t)
 
