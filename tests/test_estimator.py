@@ -57,6 +57,8 @@ def settings(**overrides):
 
 
 def make_estimator(world, angles=None, **overrides):
+    """An estimator over the synthetic world; delta_h is pinned to 0.04 rad (the figures below assume it)."""
+    overrides = {"select.delta_h": 0.04, **overrides}
     true_angles = world["db_angles"][world["idx"]] if angles is None else angles
     return est.Estimator(
         world["points"],
