@@ -23,7 +23,6 @@ import time
 
 import numpy as np
 
-from tactile6d import layout
 from tactile6d.config import compose_config
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import ArtifactError, InputError
