@@ -624,11 +624,17 @@ class Estimator:
         artifacts_dir: str | Path,
         cfg: Mapping | None = None,
         data_dir: str | Path | None = None,
+        background: np.ndarray | None = None,
     ) -> Estimator:
         """Load one object's artifacts: object.h5 (collision pieces), surface.h5 (points) and, for
-        method 'ours', latents.h5 (angles) and the autoencoder checkpoint, plus the no-contact
-        background from the data directory (``load_background``). cfg: the composed config (default:
-        conf/ with no overrides). ArtifactError names a missing file and the command that makes it.
+        method 'ours', latents.h5 (angles) and the autoencoder checkpoint. cfg: the composed config
+        (default: conf/ with no overrides). ArtifactError names a missing file and the command that
+        makes it.
+
+        background: the no-contact image (320, 240, 3) uint8 RGB of the sensor whose images will be
+        estimated; the encoder sees each image minus it. Pass your own sensor's when it is not the
+        simulated one; by default it is ``render.background`` from the data directory
+        (``load_background``), the background the databases and the paper's images were rendered over.
         """
         cfg = cfg if cfg is not None else _default_cfg()
         settings = Settings.from_cfg(cfg)
@@ -637,8 +643,10 @@ class Estimator:
         db_angles = encoder = None
         if settings.select.method == "ours":
             db_angles, latent_nc = load_database_angles(artifacts_dir, object_name)
+            if background is None:
+                background = load_background(cfg, data_dir)
             encoder = LatentAngleEncoder.from_checkpoint(
-                layout.ae_checkpoint(artifacts_dir), load_background(cfg, data_dir), latent_nc
+                layout.ae_checkpoint(artifacts_dir), check_images(np.asarray(background)[None], 1)[0], latent_nc
             )
         normals = load_surface_normals(artifacts_dir, object_name) if needs_normals(settings) else None
         surface = load_refine_surface(artifacts_dir, object_name) if settings.rank.refine else None

@@ -333,3 +333,17 @@ def test_switches_that_need_normals_or_a_surface_say_so(world):
     with pytest.raises(InputError, match="surface"):
         est.Estimator(world["points"], [world["mesh"].vertices], world["db_angles"], encoder=lambda x: x,
                       settings=settings(**{"rank.refine": "true"}))
+
+
+def test_a_sensor_with_its_own_background(tmp_path, world):
+    """A real sensor's no-contact image replaces the simulated one: the encoder subtracts it."""
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    write_tiny_autoencoder(tmp_path, 800, "prim_x")
+    own = np.random.default_rng(5).integers(0, 255, (320, 240, 3), dtype=np.uint8)
+    e = est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(["select.N=200"]), background=own)
+    np.testing.assert_array_equal(e.encoder.background, own)
+    # its own no-contact image encodes like any other no-contact image: all sensors get one angle
+    angles = e.encode(np.stack([own] * 3))
+    assert np.ptp(angles) < 1e-6
+    with pytest.raises(InputError, match="320"):
+        est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(), background=own[:100])
