@@ -89,6 +89,20 @@ def test_ours_runs_with_a_checkpoint_and_the_data_background(capsys, artifacts, 
     assert "latent angles" in out
 
 
+def test_a_sensor_background_from_a_file(capsys, artifacts, scene, tmp_path):
+    """--background: the images here are flat grey 100, so with that grey as the background every
+    sensor reads as no contact and all three get the same latent angle."""
+    from test_estimator import write_tiny_autoencoder
+
+    write_tiny_autoencoder(artifacts, 500, "prim_box")
+    write_tactile_image(tmp_path / "bg.png", np.full((320, 240, 3), 100, np.uint8))
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         "--background", str(tmp_path / "bg.png"), "--json", "select.N=500")
+    assert code == 0, err
+    angles = json.loads(out)["selection"]["angles"]
+    assert np.ptp(angles) < 1e-6
+
+
 @pytest.mark.parametrize(
     "change,message",
     [({"--scene": "/nonexistent"}, "scene folder /nonexistent not found"),

@@ -23,7 +23,7 @@ import numpy as np
 from tactile6d.config import compose_config
 from tactile6d.estimator import Estimate, Estimator
 from tactile6d.geometry import pose_to_line
-from tactile6d.io import read_scene_dir
+from tactile6d.io import read_scene_dir, read_tactile_image
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -33,6 +33,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--top", type=int, default=None, help="poses to report (sets rank.top_k; default 5)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    parser.add_argument("--background", default=None,
+                        help="the sensor's own no-contact image (PNG, 240 x 320); default: render.background")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     return parser.parse_args(argv)
 
@@ -69,7 +71,8 @@ def main(argv: list[str]) -> int:
     T_world_sensors, images = read_scene_dir(args.scene)
 
     t0 = time.perf_counter()
-    estimator = Estimator.from_artifacts(args.object, artifacts, cfg)
+    background = read_tactile_image(args.background) if args.background else None
+    estimator = Estimator.from_artifacts(args.object, artifacts, cfg, background=background)
     load_seconds = time.perf_counter() - t0
     result = estimator.estimate(T_world_sensors, images)
 
