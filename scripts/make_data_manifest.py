@@ -77,11 +77,8 @@ def needed_files(data_dir: Path) -> dict[str, list[tuple[str, str, str]]]:
 
 
 def sha256_of(path: Path) -> str:
-    digest = hashlib.sha256()
     with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 def build_manifest(data_dir: Path | str) -> dict:
