@@ -9,19 +9,17 @@ artifacts and config sections ``select``, ``optimize``, ``rank``; writes
 
 from __future__ import annotations
 
-import itertools
 import sys
 from pathlib import Path
 
-import numpy as np
 from omegaconf import OmegaConf
-from tqdm import tqdm
 
 from tactile6d import evaluation, layout
 from tactile6d.config import parse_stage_args
-from tactile6d.errors import InputError, exit_on_error
+from tactile6d.errors import exit_on_error
 from tactile6d.estimator import Estimator
 from tactile6d.io import read_artifact, write_json, write_text
+from tactile6d.sensor_subsets import evaluate_sensor_count
 
 METHODS = ("ours", "baseline")
 
@@ -55,27 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         estimators = {obj: Estimator.from_artifacts(obj, artifacts, method_cfg) for obj in objects}
         results[method] = {}
         for L in range(1, n_sensors + 1):
-            errors = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok")}
-            owners = []
-            subsets = list(itertools.combinations(range(n_sensors), L))
-            for s in tqdm(range(len(scenes["names"])), desc=f"{method} L={L}", unit="scene", leave=False):
-                obj = str(scenes["objects"][s])
-                ref = references[obj]
-                for subset in subsets:
-                    idx = list(subset)
-                    T_sensors = scenes["T_world_sensors"][s][idx]
-                    try:
-                        est = estimators[obj].estimate(T_sensors, scenes["images"][s][idx])
-                        poses, n = est.poses, len(est.poses)
-                    except InputError:  # no tuple matched: a failed estimate
-                        poses, n = np.zeros((0, 4, 4)), 0
-                    e = evaluation.scene_errors(poses, n, scenes["T_world_object"][s], T_sensors, ref.points,
-                                                ref.surface, tree=ref.tree)
-                    for key in errors:
-                        errors[key].append(e[key])
-                    owners.append(obj)
-            arrays = {key: np.array(v).reshape(len(owners), evaluation.TOP_K) for key, v in errors.items()}
-            summary = evaluation.summarise_by_object(arrays, np.array(owners)).get("average", {})
+            summary, _ = evaluate_sensor_count(scenes, estimators, references, L, desc=f"{method} L={L}")
             results[method][f"L{L}"] = summary
             print(f"{args.scene_set} {method} L={L}: position {summary.get('pos_err_cm_top1', float('nan')):.2f} cm, "
                   f"contact {summary.get('contact_acc_top1', float('nan')):.1f} %")

@@ -104,6 +104,9 @@ class SelectSettings:
         if out.delta_d_rule not in selection.DELTA_D_RULES:
             raise ConfigError(f"select.delta_d_rule must be one of {', '.join(selection.DELTA_D_RULES)}, "
                               f"not {out.delta_d_rule!r}")
+        if not (out.delta_h > 0 and out.delta_h_widen_step > 0 and out.delta_h_max >= out.delta_h):
+            raise ConfigError(f"select needs delta_h > 0, delta_h_widen_step > 0 and delta_h_max >= delta_h; got "
+                              f"{out.delta_h}, {out.delta_h_widen_step}, {out.delta_h_max}")
         if out.normal_tol_deg is not None and not out.normal_tol_deg > 0:
             raise ConfigError(f"select.normal_tol_deg must be null (off) or > 0, got {out.normal_tol_deg}")
         return out

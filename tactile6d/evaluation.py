@@ -146,3 +146,20 @@ def table_markdown(summary: dict[str, dict[str, dict[str, float]]], methods=("ou
                       f"{r.get('adi_auc_rot_top1', float('nan')):.1f}", f"{r.get('contact_acc_top1', float('nan')):.1f}"]
         rows.append("| " + " | ".join(cells) + " |")
     return "\n".join(rows)
+
+
+def ablation_markdown(results: dict[str, dict[str, dict[str, float]]]) -> str:
+    """A Markdown table of an ablation (variant -> ``L1``/``L2``/... -> summary): one row per variant, for
+    each sensor count the positional error #1 (cm), rotation ADI-AUC #1, contact accuracy #1 (%) and the
+    median seconds per estimate."""
+    counts = sorted({L for row in results.values() for L in row}, key=lambda L: int(L[1:]))
+    header = ["variant"] + [f"{L} {what}" for L in counts for what in ("pos (cm)", "rot AUC", "contact", "s")]
+    rows = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for variant, by_count in results.items():
+        cells = [variant]
+        for L in counts:
+            r = by_count.get(L, {})
+            cells += [f"{r.get('pos_err_cm_top1', float('nan')):.2f}", f"{r.get('adi_auc_rot_top1', float('nan')):.1f}",
+                      f"{r.get('contact_acc_top1', float('nan')):.1f}", f"{r.get('time_s_median', float('nan')):.2f}"]
+        rows.append("| " + " | ".join(cells) + " |")
+    return "\n".join(rows)

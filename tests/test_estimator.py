@@ -11,7 +11,7 @@ from tactile6d import estimator as est
 from tactile6d import geometry as g
 from tactile6d import layout
 from tactile6d.config import compose_config
-from tactile6d.errors import ArtifactError, InputError
+from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.io import write_artifact
 from tactile6d.meshes import pack_pieces
 from tactile6d.sensor import sensor_poses_touching
@@ -347,3 +347,10 @@ def test_a_sensor_with_its_own_background(tmp_path, world):
     assert np.ptp(angles) < 1e-6
     with pytest.raises(InputError, match="320"):
         est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(), background=own[:100])
+
+
+@pytest.mark.parametrize("bad", [{"select.delta_h": 0.6}, {"select.delta_h": 0.0}, {"select.delta_h_widen_step": 0.0}])
+def test_inconsistent_delta_h_settings_are_a_config_error_not_a_failed_estimate(bad):
+    # delta_h above delta_h_max (0.5) used to fail every estimate one by one as "no match"
+    with pytest.raises(ConfigError, match="delta_h"):
+        settings(**bad)

@@ -70,3 +70,11 @@ def test_by_object_average_and_table(box):
     table = evaluation.table_markdown({"ours": by_obj, "baseline": by_obj})
     assert table.splitlines()[0].startswith("| object | ours pos #1 (cm)")
     assert "| **average** | 2.00 |" in table
+
+
+def test_ablation_table_has_a_row_per_variant_and_columns_per_sensor_count():
+    row = {"pos_err_cm_top1": 1.234, "adi_auc_rot_top1": 95.0, "contact_acc_top1": 50.0, "time_s_median": 0.31}
+    table = evaluation.ablation_markdown({"paper": {"L1": row, "L2": row}, "default": {"L2": row}}).splitlines()
+    assert table[0].startswith("| variant | L1 pos (cm) | L1 rot AUC | L1 contact | L1 s | L2 pos (cm)")
+    assert table[2] == "| paper | 1.23 | 95.0 | 50.0 | 0.31 | 1.23 | 95.0 | 50.0 | 0.31 |"
+    assert table[3] == "| default | nan | nan | nan | nan | 1.23 | 95.0 | 50.0 | 0.31 |"

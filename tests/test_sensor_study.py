@@ -1,15 +1,19 @@
-"""Stage sensor_study on one scene of the box primitive with a tiny autoencoder: every L = 1, 2, 3."""
+"""Stages sensor_study and ablation on one scene of the box primitive with a tiny autoencoder: every L = 1, 2, 3."""
 
 import json
 
 import numpy as np
 import pytest
+from omegaconf import OmegaConf
 
-from stages import prepare_object, sample_surface, sensor_study
+from stages import ablation, prepare_object, sample_surface, sensor_study
 from tactile6d import layout
+from tactile6d.config import compose_config
+from tactile6d.errors import ConfigError
 from tactile6d.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.sensor import contact_normals, contact_points, sensor_poses_touching
+from tactile6d.sensor_subsets import sensor_subsets
 from test_estimator import write_tiny_autoencoder
 
 
@@ -45,3 +49,50 @@ def test_every_sensor_count_and_method_is_reported(artifacts, data_dir, monkeypa
     assert results["baseline"]["L3"]["pos_err_cm_top1"] < 0.5
     csv = (artifacts / "plots" / "sensor_count_tiny.csv").read_text().splitlines()
     assert csv[0].startswith("L,ours_pos_err_cm_top1") and len(csv) == 4
+
+
+def test_sensor_subsets():
+    assert sensor_subsets(3, 1) == [(0,), (1,), (2,)]
+    assert sensor_subsets(3, 2) == [(0, 1), (0, 2), (1, 2)]
+    assert sensor_subsets(4, 4) == [(0, 1, 2, 3)]
+    with pytest.raises(ValueError):
+        sensor_subsets(3, 4)
+
+
+def test_ablation_reports_every_variant_and_sensor_count(artifacts, data_dir, monkeypatch, tmp_path):
+    monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
+    # delta_h = pi: every database point passes the tiny autoencoder's angles, as for the baseline
+    cfg = compose_config([f"paths.artifacts_dir={artifacts}", "select.N=200", "select.delta_h=3.2",
+                          "select.delta_h_max=3.2"])
+    OmegaConf.set_struct(cfg, False)
+    cfg.ablation.variants = {"paper": {"select": {"delta_d_rule": "paper"}, "rank": {"refine": False}},
+                             "normals": {"select": {"normal_tol_deg": 20.0}, "optimize": {"normal_weight": 0.01}}}
+    OmegaConf.save(cfg, tmp_path / "params.yaml")
+    assert ablation.main(["--scene-set", "tiny", "--params", str(tmp_path / "params.yaml")]) == 0
+    results = json.loads(layout.metrics_file(artifacts, "ablation_tiny").read_text())
+    assert set(results) == {"paper", "normals"}
+    for variant in results.values():
+        assert set(variant) == {"L1", "L2", "L3"}
+        for summary in variant.values():
+            assert {"pos_err_cm_top1", "adi_auc_rot_top1", "contact_acc_top1", "time_s_median"} <= set(summary)
+            assert summary["time_s_median"] > 0
+    # three sensors on exact database points, with their normals: the pose is found
+    assert results["normals"]["L3"]["pos_err_cm_top1"] < 0.5
+
+
+def test_ablation_variant_overrides_only_the_estimator_sections():
+    cfg = compose_config()
+    merged = ablation.variant_config(cfg, "x", cfg.ablation.variants["paper"])
+    assert merged.select.delta_d_rule == "paper" and merged.optimize.solver == cfg.ablation.solver
+    with pytest.raises(ConfigError, match="may override only"):
+        ablation.variant_config(cfg, "x", OmegaConf.create({"render": {"width": 1}}))
+
+
+def test_the_ablation_paper_variant_is_the_paper_preset_but_for_the_solver():
+    paper = compose_config(["preset=paper"])
+    variant = ablation.variant_config(compose_config(), "paper", compose_config().ablation.variants["paper"])
+    for section in ("select", "optimize", "rank"):
+        expected = dict(paper[section])
+        if section == "optimize":
+            expected["solver"] = variant.optimize.solver
+        assert dict(variant[section]) == expected, section
