@@ -142,9 +142,12 @@ class OptimizeSettings:
         out = cls(**_fields(section, cls))
         if out.solver not in SOLVERS:
             raise ConfigError(f"optimize.solver must be one of {', '.join(SOLVERS)}, not {out.solver!r}")
-        if out.normal_weight < 0 or (out.normal_weight > 0 and out.solver != "fast"):
-            raise ConfigError(f"optimize.normal_weight must be >= 0, and > 0 only with solver fast; got "
-                              f"{out.normal_weight} with {out.solver!r}")
+        if out.normal_weight < 0:
+            raise ConfigError(f"optimize.normal_weight must be >= 0, got {out.normal_weight}")
+        if out.normal_weight > 0 and out.solver != "fast":
+            # the gd solver is the paper's, on positions only: say how to get it rather than drop the term
+            raise ConfigError(f"optimize.normal_weight={out.normal_weight} needs solver fast; with solver "
+                              f"{out.solver!r} set optimize.normal_weight=0 too (or use preset=paper)")
         return out
 
 

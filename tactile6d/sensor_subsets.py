@@ -35,6 +35,7 @@ def evaluate_sensor_count(
     references: Mapping[str, evaluation.ObjectReference],
     count: int,
     desc: str = "",
+    progress: bool = True,
 ) -> tuple[dict[str, float], list[float]]:
     """Estimate every scene from every subset of ``count`` of its sensors and summarise.
 
@@ -42,7 +43,7 @@ def evaluate_sensor_count(
     (S, L, 4, 4), ``images`` (S, L, 320, 240, 3)); estimators and references keyed by object name.
     Returns the average row of ``evaluation.summarise_by_object`` (the metric keys of
     ``evaluation.SUMMARY_KEYS``; an empty dict for an empty set) and the wall-clock seconds of each
-    estimate. An estimate with no matching tuple (InputError) counts as a failure, as in evaluate.
+    estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate with no matching tuple (InputError) counts as a failure, as in evaluate.
     """
     n_scenes = len(scenes["objects"])
     if n_scenes == 0:
@@ -50,7 +51,7 @@ def evaluate_sensor_count(
     subsets = sensor_subsets(scenes["T_world_sensors"].shape[1], count)
     rows: dict[str, list[np.ndarray]] = {key: [] for key in ERROR_KEYS}
     owners, seconds = [], []
-    for s in tqdm(range(n_scenes), desc=desc or f"L={count}", unit="scene", leave=False):
+    for s in tqdm(range(n_scenes), desc=desc or f"L={count}", unit="scene", leave=False, disable=not progress):
         obj = str(scenes["objects"][s])
         ref = references[obj]
         for subset in subsets:

@@ -85,6 +85,36 @@ def test_preprocess_maps_background_to_zero_and_averages_blocks():
     np.testing.assert_allclose(x[1, :, 0, 0].numpy(), diff / np.array([2.0, 4.0, 8.0]), rtol=1e-6)
 
 
+def test_peak_normalisation_removes_the_press_depth_but_not_the_noise_floor():
+    diffs = torch.zeros(3, 3, 8, 6)
+    diffs[0, :, 2:4, 2:4] = 10.0          # colour-summed peak 30
+    diffs[1] = 2.0 * diffs[0]             # the same imprint pressed twice as hard
+    diffs[2, 0, 0, 0] = 4.0               # sensor noise only: peak 4, below the floor
+    out = ae.divide_by_peak(diffs, 20.0)
+    torch.testing.assert_close(out[0], out[1])
+    assert float(out[0].abs().sum(dim=0).max()) == pytest.approx(1.0)
+    assert float(out[2].abs().max()) == pytest.approx(4.0 / 20.0)
+    assert ae.divide_by_peak(diffs, None) is diffs
+
+
+def test_preprocess_with_peak_floor_gives_unit_peaks():
+    bg = background()
+    pressed = bg.astype(int)
+    pressed[100:140, 80:120] += 40
+    imgs = np.stack([bg, np.clip(pressed, 0, 255).astype(np.uint8)])
+    x = ae.preprocess(imgs, bg, ae.Normalisation(height=64, width=48, scale=(1.0, 1.0, 1.0), peak_floor=20.0))
+    assert torch.all(x[0] == 0)
+    assert float(x[1].abs().sum(dim=0).max()) == pytest.approx(1.0, rel=1e-5)
+
+
+def test_normalisation_dict_round_trip_and_old_checkpoints_without_peak_floor():
+    norm = ae.Normalisation(32, 24, (1.0, 2.0, 3.0), peak_floor=20.0)
+    assert ae.Normalisation.from_dict(norm.to_dict()) == norm
+    assert ae.Normalisation.from_dict({"height": 32, "width": 24, "scale": [1, 2, 3]}).peak_floor is None
+    with pytest.raises(ValueError, match="peak_floor"):
+        ae.Normalisation.from_dict({**norm.to_dict(), "peak_floor": 0.0})
+
+
 def test_bootstrapped_l2_is_mean_of_largest_quarter():
     target = torch.zeros(1, 3, 2, 4)
     recon = torch.zeros(1, 3, 2, 4)
@@ -142,6 +172,16 @@ def test_latent_angles_match_a_naive_reference():
     np.testing.assert_allclose(ae.latent_angles(h, h_nc), expected, atol=1e-12)
     assert ae.latent_angles(h_nc[None], -h_nc)[0] == pytest.approx(np.pi)
     assert ae.latent_angles(np.zeros((1, 128)), h_nc)[0] == pytest.approx(np.pi / 2)
+
+
+def test_training_with_a_peak_floor_keeps_it_in_the_normalisation(tmp_path, small_set):
+    bg, imgs = small_set
+    cfg = small_cfg(epochs=1, peak_floor=20.0)
+    model, norm, _ = ae.train(imgs[:24], bg, cfg, seed=0, progress=False)
+    assert norm.peak_floor == 20.0
+    ae.save_checkpoint(tmp_path / "ae.pt", model, norm, cfg, {})
+    _, norm2, cfg2 = ae.load_checkpoint(tmp_path / "ae.pt")
+    assert norm2 == norm and cfg2["peak_floor"] == 20.0
 
 
 def test_checkpoint_round_trip(tmp_path, small_set):

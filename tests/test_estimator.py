@@ -44,6 +44,7 @@ def world():
     return {
         "mesh": mesh,
         "points": points,
+        "normals": normals,
         "db_angles": db_angles,
         "idx": idx,
         "T_world_sensors": T_TRUE @ T_object_sensors,
@@ -66,6 +67,7 @@ def make_estimator(world, angles=None, **overrides):
         world["db_angles"],
         encoder=lambda images: true_angles[: len(images)],
         settings=settings(**overrides),
+        normals=world["normals"],
         surface=world["mesh"],
     )
 
@@ -115,7 +117,7 @@ def test_an_image_far_from_every_database_angle_widens_its_delta_h(world):
 
 def test_baseline_uses_every_point_and_needs_no_images(world):
     e = est.Estimator(world["points"], [world["mesh"].vertices], settings=settings(**{"select.method": "baseline"}),
-                      surface=world["mesh"])
+                      normals=world["normals"], surface=world["mesh"])
     result = e.estimate(world["T_world_sensors"])
     assert result.angles is None
     assert result.selection.omega_sizes.tolist() == [800, 800, 800]
@@ -145,7 +147,7 @@ def test_any_number_of_sensors_works(world, n_sensors):
 
 def test_faithful_gd_solver_runs_through_the_estimator(world):
     e = make_estimator(world, **{"select.N": 20, "optimize.solver": "gd", "optimize.n_steps": 30,
-                                 "optimize.n_translations": 2})
+                                 "optimize.n_translations": 2, "optimize.normal_weight": 0.0})
     result = e.estimate(world["T_world_sensors"], world["images"])
     assert result.n_hypotheses == 2 * result.selection.tuples.shape[0]
     assert np.all(np.isfinite(result.scores))
@@ -193,19 +195,19 @@ def test_bad_images_are_rejected(world, images, message):
 
 def test_ours_without_an_encoder_is_rejected(world):
     with pytest.raises(InputError, match="needs the database angles and an image encoder"):
-        est.Estimator(world["points"], [world["mesh"].vertices], settings=settings())
+        est.Estimator(world["points"], [world["mesh"].vertices], settings=settings(), normals=world["normals"])
 
 
 # --- loading from artifacts ---------------------------------------------------------------------------
 
 
-def write_object_artifacts(artifacts: Path, name: str, mesh: trimesh.Trimesh, points: np.ndarray):
+def write_object_artifacts(artifacts: Path, name: str, mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarray):
     """object.h5 (the mesh, one convex piece) and surface.h5, as prepare_object and sample_surface write them."""
     write_artifact(layout.object_file(artifacts, name), "object",
                    {"vertices": mesh.vertices, "faces": mesh.faces, "metric_points": points,
                     **pack_pieces([(np.asarray(mesh.vertices), np.asarray(mesh.faces))])})
     write_artifact(layout.surface_file(artifacts, name), "surface",
-                   {"points": points, "normals": np.zeros_like(points), "face_index": np.zeros(len(points), int)})
+                   {"points": points, "normals": normals, "face_index": np.zeros(len(points), int)})
 
 
 def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
@@ -231,7 +233,7 @@ def test_missing_artifacts_name_the_dvc_command(tmp_path, world):
         est.Estimator.from_artifacts("prim_x", tmp_path)
     assert "surfaces/prim_x.h5: missing" in str(missing_surface.value)
     assert "`dvc repro sample_surface@prim_x`" in str(missing_surface.value)
-    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"], world["normals"])
     with pytest.raises(ArtifactError) as missing_latents:
         est.Estimator.from_artifacts("prim_x", tmp_path)
     assert "latents/prim_x.h5: missing" in str(missing_latents.value)
@@ -241,7 +243,7 @@ def test_missing_artifacts_name_the_dvc_command(tmp_path, world):
 
 
 def test_ours_from_artifacts_encodes_images_with_the_checkpoint(tmp_path, world, data_dir):
-    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"], world["normals"])
     write_tiny_autoencoder(tmp_path, 800, "prim_x")
     e = est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(["select.N=200"]), data_dir=data_dir)
     background = est.load_background(compose_config(), data_dir)
@@ -255,7 +257,7 @@ def test_ours_from_artifacts_encodes_images_with_the_checkpoint(tmp_path, world,
 
 
 def test_missing_checkpoint_names_train_ae(tmp_path, world, data_dir):
-    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"], world["normals"])
     write_tiny_autoencoder(tmp_path, 800, "prim_x")
     layout.ae_checkpoint(tmp_path).unlink()
     with pytest.raises(ArtifactError, match="dvc repro train_ae"):
@@ -318,11 +320,11 @@ def test_two_sensors_only_the_normals_tell_the_rotation_about_their_line(world, 
     # through them: positions alone cannot tell those poses apart, the contact normals can.
     T, images = world["T_world_sensors"][:2], world["images"][:2]
     exact = dict(off_grid, idx=world["idx"])
-    on = make_full_estimator(world, exact, **{"select.normal_tol_deg": 20, "optimize.normal_weight": 0.01,
-                                              "rank.refine": "true"}).estimate(T, images)
+    on = make_full_estimator(world, exact).estimate(T, images)  # the defaults: both normal switches on
     dt, dr = pose_errors(on.best, T_TRUE)
     assert dt < 1e-4 and dr < 0.1 and on.losses[0] < 1e-6
-    off = make_full_estimator(world, exact, **{"rank.refine": "false"}).estimate(T, images)
+    off = make_full_estimator(world, exact, **{"select.normal_tol_deg": "null", "optimize.normal_weight": 0.0,
+                                               "rank.refine": "false"}).estimate(T, images)
     assert pose_errors(off.best, T_TRUE)[1] > 5.0
 
 
@@ -332,12 +334,12 @@ def test_switches_that_need_normals_or_a_surface_say_so(world):
                       settings=settings(**{"select.normal_tol_deg": 20}))
     with pytest.raises(InputError, match="surface"):
         est.Estimator(world["points"], [world["mesh"].vertices], world["db_angles"], encoder=lambda x: x,
-                      settings=settings(**{"rank.refine": "true"}))
+                      settings=settings(**{"rank.refine": "true"}), normals=world["normals"])
 
 
 def test_a_sensor_with_its_own_background(tmp_path, world):
     """A real sensor's no-contact image replaces the simulated one: the encoder subtracts it."""
-    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"])
+    write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"], world["normals"])
     write_tiny_autoencoder(tmp_path, 800, "prim_x")
     own = np.random.default_rng(5).integers(0, 255, (320, 240, 3), dtype=np.uint8)
     e = est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(["select.N=200"]), background=own)

@@ -66,11 +66,13 @@ def test_ablation_reports_every_variant_and_sensor_count(artifacts, data_dir, mo
                           "select.delta_h_max=3.2"])
     OmegaConf.set_struct(cfg, False)
     cfg.ablation.variants = {"paper": {"select": {"delta_d_rule": "paper"}, "rank": {"refine": False}},
-                             "normals": {"select": {"normal_tol_deg": 20.0}, "optimize": {"normal_weight": 0.01}}}
+                             "normals": {"select": {"normal_tol_deg": 20.0}, "optimize": {"normal_weight": 0.01}},
+                             "paper_again": {"rank": {"refine": False}, "select": {"delta_d_rule": "paper"}}}
     OmegaConf.save(cfg, tmp_path / "params.yaml")
     assert ablation.main(["--scene-set", "tiny", "--params", str(tmp_path / "params.yaml")]) == 0
     results = json.loads(layout.metrics_file(artifacts, "ablation_tiny").read_text())
-    assert set(results) == {"paper", "normals"}
+    assert set(results) == {"paper", "normals", "paper_again"}
+    assert results["paper_again"] == results["paper"]  # the same settings are estimated once (same timings too)
     for variant in results.values():
         assert set(variant) == {"L1", "L2", "L3"}
         for summary in variant.values():

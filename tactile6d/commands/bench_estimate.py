@@ -3,8 +3,8 @@
 Runs the online estimator (``tactile6d.estimator``) on the paper's triplets (L = 3) of every object
 whose artifacts exist in ``--artifacts`` (or of the ``--object`` ones), in three configurations: the
 default (the composed config with any overrides given), the baseline (``select.method=baseline``) and
-the faithful path (``optimize.solver=gd``, the paper's 700-step gradient descent, on the first
-``--faithful-scenes`` triplets only since it takes ~20 s each). Each configuration is warmed up on
+the faithful path (``preset=paper``: the paper's method end to end, with its 700-step gradient
+descent, on the first ``--faithful-scenes`` triplets only since it takes ~20 s each). Each configuration is warmed up on
 one triplet first (library start-up, JAX compilation), then each triplet is timed once.
 
 Prints the per-step medians of each configuration, then, as its last line, one JSON object with
@@ -86,7 +86,7 @@ def main(argv: list[str]) -> int:
     variants = {
         "default": Settings.from_cfg(cfg),
         "baseline": Settings.from_cfg(compose_config([*args.overrides, "select.method=baseline"])),
-        "faithful": Settings.from_cfg(compose_config([*args.overrides, "optimize.solver=gd"])),
+        "faithful": Settings.from_cfg(compose_config(["preset=paper", *args.overrides])),
     }
 
     # The default's artifacts (for method ours: latents and the autoencoder too); else the baseline's.

@@ -9,7 +9,7 @@ Output: the best ``T_world_object`` as one ``x y z ax ay az angle`` line, then a
 matrices, their scores, losses and penetrations, the selection diagnostics and the timings.
 
 Config overrides (Hydra syntax) pass through, e.g. ``select.method=baseline select.delta_h=0.05
-select.N=2000 optimize.solver=gd``.
+select.N=2000``, or ``preset=paper`` for the paper's method end to end.
 """
 
 from __future__ import annotations
