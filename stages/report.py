@@ -92,13 +92,19 @@ def figure_scenes(artifacts: str, out: Path) -> list[str]:
     return names
 
 
-def ablation_sections(artifacts: str, order: list[str]) -> list[str]:
-    """A titled table per scene set of artifacts/metrics/ablation_<set>.json, variants in config order."""
+def ablation_sections(artifacts: str, order: list[str], figures: Path) -> list[str]:
+    """Per scene set, a figure and a table of artifacts/metrics/ablation_<set>.json, variants in config order."""
     parts = []
     for scene_set, title in (("caddeo2023", "The paper's 40 triplets"), ("validation", "Validation scenes")):
         results = load_json(layout.metrics_file(artifacts, f"ablation_{scene_set}"))
         ordered = {v: results[v] for v in order if v in results}
-        parts += [f"{title}:", "", ablation_markdown(ordered) if ordered else "(not run)", ""]
+        if not ordered:
+            parts += [f"{title}: (not run)", ""]
+            continue
+        viz.sensor_count_figure(ordered, f"Ablation, {title.lower()}").savefig(
+            figures / f"ablation_{scene_set}.png", dpi=100)
+        parts += [f"{title}:", "", f"![ablation {scene_set}](figures/ablation_{scene_set}.png)", "",
+                  ablation_markdown(ordered), ""]
     return parts
 
 
@@ -148,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
          "(conf/ablation/default.yaml); every scene is estimated from each subset of its sensors. "
          "Position and rotation ADI-AUC of the best pose; contact accuracy in %; median seconds per estimate."),
         "",
-        *ablation_sections(artifacts, list(cfg.ablation.variants)),
+        *ablation_sections(artifacts, list(cfg.ablation.variants), figures),
         "### Autoencoder",
         "",
         (f"Trained in {ae.get('train_seconds', float('nan')):.0f} s on the superquadric set only. On the 10 YCB "

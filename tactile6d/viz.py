@@ -102,7 +102,8 @@ def angle_maps_figure(maps: dict[str, tuple[np.ndarray, np.ndarray]]):
 
 
 def sensor_count_figure(results: dict, title: str):
-    """Positional error and contact accuracy against L, one line per method (results[method]['L<k>'])."""
+    """Positional error and contact accuracy against L, one line per method or ablation variant
+    (``results[name]['L<k>']``, as the sensor_study and ablation stages write them)."""
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
     for method, by_l in results.items():
         ls = sorted(int(k[1:]) for k in by_l)
