@@ -95,6 +95,7 @@ class SelectSettings:
     seed: int
     delta_d_rule: str
     normal_tol_deg: float | None
+    normal_max_sensors: int | None
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> SelectSettings:
@@ -109,11 +110,22 @@ class SelectSettings:
                               f"{out.delta_h}, {out.delta_h_widen_step}, {out.delta_h_max}")
         if out.normal_tol_deg is not None and not out.normal_tol_deg > 0:
             raise ConfigError(f"select.normal_tol_deg must be null (off) or > 0, got {out.normal_tol_deg}")
+        _check_max_sensors("select", out.normal_max_sensors)
         return out
 
     @property
     def uses_normals(self) -> bool:
+        """Whether the normal check can apply at all (then the database normals are needed)."""
         return self.normal_tol_deg is not None
+
+    def normals_apply(self, n_sensors: int) -> bool:
+        """Whether the normal check applies to an estimate from ``n_sensors`` sensors."""
+        return self.uses_normals and (self.normal_max_sensors is None or n_sensors <= self.normal_max_sensors)
+
+
+def _check_max_sensors(section: str, value) -> None:
+    if value is not None and not (isinstance(value, int) and value >= 1):
+        raise ConfigError(f"{section}.normal_max_sensors must be null (any L) or an integer >= 1, got {value!r}")
 
 
 def needs_normals(settings: Settings) -> bool:
@@ -136,6 +148,7 @@ class OptimizeSettings:
     cpu_devices: int
     seed: int
     normal_weight: float
+    normal_max_sensors: int | None
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> OptimizeSettings:
@@ -148,7 +161,14 @@ class OptimizeSettings:
             # the gd solver is the paper's, on positions only: say how to get it rather than drop the term
             raise ConfigError(f"optimize.normal_weight={out.normal_weight} needs solver fast; with solver "
                               f"{out.solver!r} set optimize.normal_weight=0 too (or use preset=paper)")
+        _check_max_sensors("optimize", out.normal_max_sensors)
         return out
+
+    def normal_weight_for(self, n_sensors: int) -> float:
+        """The normal term's weight for an estimate from ``n_sensors`` sensors (0: positions only)."""
+        if self.normal_max_sensors is not None and n_sensors > self.normal_max_sensors:
+            return 0.0
+        return float(self.normal_weight)
 
 
 @dataclass(frozen=True)
@@ -275,7 +295,7 @@ def select(
     """
     n_sensors = T_world_sensors.shape[0]
     check = None
-    if settings.uses_normals:
+    if settings.normals_apply(n_sensors):
         if normals is None:
             raise InputError("select.normal_tol_deg is set: the database normals are needed")
         check = selection.NormalCheck(np.asarray(normals, dtype=np.float64), contact_normals(T_world_sensors),
@@ -345,7 +365,7 @@ def optimize(
         precision=str(settings.precision),
         normals=normals,
         sensor_normals=contact_normals(T_world_sensors),
-        normal_weight=float(settings.normal_weight),
+        normal_weight=settings.normal_weight_for(T_world_sensors.shape[0]),
     )
 
 

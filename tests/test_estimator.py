@@ -356,3 +356,22 @@ def test_inconsistent_delta_h_settings_are_a_config_error_not_a_failed_estimate(
     # delta_h above delta_h_max (0.5) used to fail every estimate one by one as "no match"
     with pytest.raises(ConfigError, match="delta_h"):
         settings(**bad)
+
+
+def test_normal_switches_apply_up_to_normal_max_sensors(world, off_grid):
+    T, images = off_grid["T_world_sensors"], world["images"]
+    on = {"select.normal_tol_deg": 45, "optimize.normal_weight": 0.01, "rank.refine": "false"}
+    off = {"select.normal_tol_deg": "null", "optimize.normal_weight": 0.0, "rank.refine": "false"}
+    limited = {**on, "select.normal_max_sensors": 2, "optimize.normal_max_sensors": 2}
+    three = make_full_estimator(world, off_grid, **limited).estimate(T, images)
+    np.testing.assert_array_equal(three.poses, make_full_estimator(world, off_grid, **off).estimate(T, images).poses)
+    two = make_full_estimator(world, off_grid, **limited).estimate(T[:2], images[:2])
+    np.testing.assert_array_equal(two.poses, make_full_estimator(world, off_grid, **on).estimate(T[:2], images[:2]).poses)
+    positions_only = make_full_estimator(world, off_grid, **off).estimate(T[:2], images[:2])
+    assert not np.array_equal(two.selection.tuples, positions_only.selection.tuples)  # the check did apply
+
+
+@pytest.mark.parametrize("key", ["select.normal_max_sensors", "optimize.normal_max_sensors"])
+def test_normal_max_sensors_must_be_a_positive_count(key):
+    with pytest.raises(ConfigError, match="normal_max_sensors"):
+        settings(**{key: 0})
