@@ -150,9 +150,11 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "### Ablation: each switch, L = 1, 2, 3 sensors",
         "",
-        ("From the paper's method (`paper`, but with the fast solver) to the default, one switch at a time "
-         "(conf/ablation/default.yaml); every scene is estimated from each subset of its sensors. "
-         "Position and rotation ADI-AUC of the best pose; contact accuracy in %; median seconds per estimate."),
+        ("From the paper's method (`paper` = `preset=paper`; `paper_fast`: the same with the fast solver) to "
+         "the default, one switch at a time (conf/ablation/default.yaml); every scene is estimated from each "
+         "subset of its sensors. Position and rotation ADI-AUC of the best pose; contact accuracy in %; median "
+         "seconds per estimate, measured with two variants running at once (`paper`'s gradient descent uses "
+         "both cores), so slower than alone: see the benchmark for speed."),
         "",
         *ablation_sections(artifacts, list(cfg.ablation.variants), figures),
         "### Autoencoder",
