@@ -7,7 +7,8 @@ checkpoint and ``artifacts/ae/train.json``. Writes ``artifacts/metrics/ae.json``
 - the latent angle of the database points per contact type (the contact classifier of
   tactile6d.contact), and ``auroc_flat_edge`` / ``auroc_edge_corner``: the AUROC of the angle as a score
   separating flat from edge and edge from corner contacts (larger for the flatter kind: a flat press
-  changes more of the image);
+  changes more of the image), over all objects pooled and (``..._within_object``) over pairs of
+  database points of the same object only, which is how selection uses the angle;
 - ``triplet_angle_gap_median``: for each sensor of the paper's 40 triplets, the gap between its image's
   angle and the angle of the database point nearest its true contact point (same object), median over
   the 120 sensors (and its 90th percentile), to compare with ``select.delta_h``. (Not read here, so that
@@ -81,7 +82,13 @@ def main(argv: list[str] | None = None) -> int:
         points[name] = surface["points"]
         types[name] = database_types(artifacts, name, surface["points"], surface["normals"])
     all_angles, all_types = np.concatenate(list(angles.values())), np.concatenate(list(types.values()))
+    all_objects = np.concatenate([np.full(len(types[name]), name) for name in names])
     by_type = {kind: all_angles[all_types == code] for code, kind in enumerate(contact.CONTACT_TYPES)}
+    objects_by_type = {kind: all_objects[all_types == code] for code, kind in enumerate(contact.CONTACT_TYPES)}
+
+    def auroc_within_objects(positive: str, negative: str) -> float:
+        return metrics.auroc_within_groups(by_type[positive], by_type[negative],
+                                           objects_by_type[positive], objects_by_type[negative])
 
     model, norm, _ = autoencoder.load_checkpoint(layout.ae_checkpoint(artifacts))
     background = read_artifact(layout.database_file(artifacts, names[0]), "database")["background"]
@@ -93,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
         "heldout_recon_loss": train["final_val_loss"],
         "auroc_flat_edge": metrics.auroc(by_type["flat"], by_type["edge"]),
         "auroc_edge_corner": metrics.auroc(by_type["edge"], by_type["corner"]),
+        "auroc_flat_edge_within_object": auroc_within_objects("flat", "edge"),
+        "auroc_edge_corner_within_object": auroc_within_objects("edge", "corner"),
         "triplet_angle_gap_median": float(np.median(gaps)) if gaps.size else float("nan"),
         "triplet_angle_gap_p90": float(np.quantile(gaps, 0.9)) if gaps.size else float("nan"),
         "angle_median_by_type": {k: float(np.median(v)) if len(v) else float("nan") for k, v in by_type.items()},

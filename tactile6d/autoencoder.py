@@ -9,21 +9,31 @@ errors (summed over colour channels), so that the small contact patch is not dro
 
 What the model sees. The tactile signal is the change from the no-contact image, so the model is fed
 ``(image - background)``, averaged over blocks down to ``input_height x input_width`` (area
-interpolation, which also averages the sensor noise away), optionally divided by its own peak
-(``peak_floor``, below), and divided per colour channel by its RMS over the training split. The
-no-contact image therefore maps to an all-zero input, whatever background the images were rendered over,
-and the same model serves databases and real images rendered over different backgrounds. What defines
-this (input size, peak floor, per-channel scale) forms ``Normalisation`` and is saved with the checkpoint.
+interpolation, which also averages the sensor noise away), divided by its own peak (``peak_floor``),
+plus a constant ``input_offset``, and divided per colour channel by its RMS over the training split. The
+no-contact image therefore maps to the same uniform input whatever background the images were rendered
+over, and the same model serves databases and real images rendered over different backgrounds. What
+defines this (input size, peak floor, offset, per-channel scale) forms ``Normalisation`` and is saved
+with the checkpoint.
 
-Peak normalisation (``peak_floor`` set; off by default and in the paper). Each image's difference is
+Peak normalisation (``peak_floor``; null turns it off, as in the paper). Each image's difference is
 divided by its peak, the largest colour-summed ``|difference|`` over its pixels, or by ``peak_floor``
 where the peak is smaller (so that the sensor noise of a no-contact image stays near zero instead of
 being blown up). The model then sees the imprint's shape at unit contrast, not how hard the gel was
-pressed. Why it was tried: on the YCB databases the ratio of changed area to peak separates edge from
-corner contacts (AUROC 0.81) where the changed area alone does not (0.68). Measured with floor 20 (the
-default training set and seed): the latent angle's AUROC flat/edge 0.976 (0.951 without), edge/corner
-0.623 (0.620), triplet gap median 0.102 rad (0.111) but 90th percentile 0.42 (0.30); and on the
-validation scenes at L = 3, contact accuracy 40 % against 55 % without. Hence off.
+pressed: on the YCB databases the ratio of changed area to peak separates edge from corner contacts
+(AUROC 0.81) where the changed area alone does not (0.68).
+
+Input offset (``input_offset``; 0 turns it off). A uniform level added to every input pixel, a synthetic
+background in units of the peak. Without it the no-contact input is all zeros, so ``h_nc`` =
+encoder(0) is set by the biases alone; the latents of contacts then point nearly perpendicular to it
+(median angles 1.45-1.95 rad for every contact type) and the angle saturates. With it the no-contact
+input is the level on which every training imprint sits, and the angle grows with the imprint
+(medians 1.02 corner, 1.14 edge, 1.41 curved, 1.58 flat). Peak normalisation alone gave no gain; both
+together did. Measured on the YCB databases with the default training set and seed, latent-angle AUROC
+(flat/edge, edge/corner, edge/corner within an object): neither 0.951 / 0.620 / 0.715; peak floor 20
+alone 0.976 / 0.623 / 0.726; both (floor 20, offset 0.5, the default) 0.954 / 0.655 / 0.789, and with
+seed 1 0.976 / 0.674 / 0.785. An offset of 10 after the RMS scaling instead of 0.5 before it: 0.992 /
+0.637 / 0.767; 30 diverged.
 
 Arrays: images are uint8 ``(n, 320, 240, 3)`` (rows along the sensor's z axis, 240 columns along y; the
 colour order is whatever the caller uses, consistently); a background is ``(320, 240, 3)``. Model tensors
@@ -53,6 +63,7 @@ CHECKPOINT_FORMAT = "tactile6d-autoencoder-v1"
 # Made by stage encode_database: the database latents (M, 128), the no-contact latent (128,) and each
 # database image's latent angle (M,) in radians.
 register_schema(Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")))
+_OPTIONAL_KEYS = ("peak_floor", "input_offset")  # absent in configs and checkpoints older than these switches
 _CHECKPOINT_KEYS = ("format", "state_dict", "norm", "cfg", "history")
 # Images preprocessed at once: bounds the float32 copy of full-size images (about 0.9 MB each).
 _PREPROCESS_CHUNK = 256
@@ -75,13 +86,14 @@ class AEConfig:
     threads: int
     device: str
     peak_floor: float | None = None
+    input_offset: float = 0.0
 
     @classmethod
     def from_cfg(cls, cfg: Mapping | AEConfig) -> AEConfig:
         """Read the fields from a mapping (dict or DictConfig); extra keys (``seed``) are ignored."""
         if isinstance(cfg, AEConfig):
             return cfg
-        missing = [name for name in cls.__dataclass_fields__ if name not in cfg and name != "peak_floor"]
+        missing = [name for name in cls.__dataclass_fields__ if name not in cfg and name not in _OPTIONAL_KEYS]
         if missing:
             raise ConfigError(f"ae config lacks keys {missing}")
         channels = tuple(int(c) for c in cfg["channels"])
@@ -99,6 +111,7 @@ class AEConfig:
             threads=int(cfg["threads"]),
             device=str(cfg["device"]),
             peak_floor=None if cfg.get("peak_floor") is None else float(cfg["peak_floor"]),
+            input_offset=float(cfg.get("input_offset", 0.0)),
         )
         if len(channels) != 4 or min(channels) < 1:
             raise ConfigError(f"ae.channels must be 4 positive integers, got {list(channels)}")
@@ -110,6 +123,8 @@ class AEConfig:
             raise ConfigError(f"ae.val_fraction must be in [0, 1), got {out.val_fraction}")
         if out.device not in ("auto", "cpu", "cuda"):
             raise ConfigError(f"ae.device must be auto, cpu or cuda, got {out.device!r}")
+        if not np.isfinite(out.input_offset):
+            raise ConfigError(f"ae.input_offset must be a finite number, got {out.input_offset}")
         if out.peak_floor is not None and not out.peak_floor > 0:
             raise ConfigError(f"ae.peak_floor must be null (off) or > 0, got {out.peak_floor}")
         if min(out.input_height, out.input_width, out.latent_dim, out.epochs, out.batch_size, out.threads) < 1:
@@ -120,18 +135,20 @@ class AEConfig:
 @dataclass(frozen=True)
 class Normalisation:
     """How images become model input: ``(image - background)`` area-resized to (height, width), divided by
-    its peak floored at ``peak_floor`` (None: not), then / scale.
+    its peak floored at ``peak_floor`` (None: not), plus ``offset``, then / scale.
 
-    ``scale`` (3,) is the per-channel RMS of the (peak-normalised) resized difference over the training split.
+    ``scale`` (3,) is the per-channel RMS of that input before the division, over the training split.
     """
 
     height: int
     width: int
     scale: tuple[float, float, float]
     peak_floor: float | None = None
+    offset: float = 0.0
 
     def to_dict(self) -> dict:
-        return {"height": self.height, "width": self.width, "scale": list(self.scale), "peak_floor": self.peak_floor}
+        return {"height": self.height, "width": self.width, "scale": list(self.scale), "peak_floor": self.peak_floor,
+                "offset": self.offset}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> Normalisation:
@@ -142,7 +159,7 @@ class Normalisation:
         if floor is not None and not float(floor) > 0.0:
             raise ValueError(f"peak_floor must be None or > 0, got {floor}")
         return cls(height=int(d["height"]), width=int(d["width"]), scale=scale,
-                   peak_floor=None if floor is None else float(floor))
+                   peak_floor=None if floor is None else float(floor), offset=float(d.get("offset", 0.0)))
 
 
 # --- the network -------------------------------------------------------------------------------------
@@ -263,13 +280,15 @@ def preprocess(images, background: np.ndarray, norm: Normalisation) -> torch.Ten
     out = torch.empty((images.shape[0], 3, norm.height, norm.width), dtype=torch.float32)
     for sl in _chunks(images.shape[0], _PREPROCESS_CHUNK):
         diffs = _resized_difference(images[sl], background, norm.height, norm.width)
-        out[sl] = divide_by_peak(diffs, norm.peak_floor) / scale
+        out[sl] = (divide_by_peak(diffs, norm.peak_floor) + norm.offset) / scale
     return out
 
 
-def fit_normalisation(diffs: torch.Tensor, height: int, width: int, peak_floor: float | None = None) -> Normalisation:
-    """Resized (and, with ``peak_floor``, peak-normalised) differences (n, 3, H, W) of the training split ->
-    Normalisation with their per-channel RMS.
+def fit_normalisation(
+    diffs: torch.Tensor, height: int, width: int, peak_floor: float | None = None, offset: float = 0.0
+) -> Normalisation:
+    """Resized differences (n, 3, H, W) of the training split, already peak-normalised with ``peak_floor``
+    and offset by ``offset`` -> Normalisation with their per-channel RMS (and those two settings).
 
     A channel that never changes (RMS 0) keeps scale 1 rather than dividing by zero. Accumulated in
     float64 chunk by chunk, so no full-size float64 copy is made.
@@ -279,7 +298,8 @@ def fit_normalisation(diffs: torch.Tensor, height: int, width: int, peak_floor: 
         sum_sq += diffs[sl].double().pow(2).sum(dim=(0, 2, 3))
     rms = (sum_sq / max(1, diffs.shape[0] * diffs.shape[2] * diffs.shape[3])).sqrt()
     rms = torch.where(rms > 1e-6, rms, torch.ones_like(rms))
-    return Normalisation(height=height, width=width, scale=tuple(float(s) for s in rms), peak_floor=peak_floor)
+    return Normalisation(height=height, width=width, scale=tuple(float(s) for s in rms), peak_floor=peak_floor,
+                         offset=offset)
 
 
 # --- training ----------------------------------------------------------------------------------------
@@ -371,11 +391,11 @@ def train(
         x = torch.empty((n, 3, c.input_height, c.input_width), dtype=torch.float32)
         for sl in _chunks(n, _PREPROCESS_CHUNK):
             x[sl] = divide_by_peak(_resized_difference(images[sl], background, c.input_height, c.input_width),
-                                   c.peak_floor)
+                                   c.peak_floor) + c.input_offset
         train_idx, val_idx = split_indices(n, vf, seed)
         x_train, x_val = x[torch.from_numpy(train_idx)], x[torch.from_numpy(val_idx)]
         del x
-        norm = fit_normalisation(x_train, c.input_height, c.input_width, c.peak_floor)
+        norm = fit_normalisation(x_train, c.input_height, c.input_width, c.peak_floor, c.input_offset)
         scale = torch.tensor(norm.scale, dtype=torch.float32)[None, :, None, None]
         x_train /= scale
         x_val /= scale

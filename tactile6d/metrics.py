@@ -195,3 +195,25 @@ def auroc(positive: np.ndarray, negative: np.ndarray) -> float:
     ranks = rankdata(np.concatenate([pos, neg]))
     u = ranks[: pos.size].sum() - pos.size * (pos.size + 1) / 2.0
     return float(u / (pos.size * neg.size))
+
+
+def auroc_within_groups(
+    positive: np.ndarray, negative: np.ndarray, positive_groups: np.ndarray, negative_groups: np.ndarray
+) -> float:
+    """AUROC over the (positive, negative) pairs that share a group only: the probability that a random
+    positive scores above a random negative of the same group, ties counting one half.
+
+    Equals the per-group AUROCs averaged with weights n_pos * n_neg; groups lacking either side add no
+    pairs; NaN when no group has both. Used per object for the latent angle, which is only ever compared
+    within one object's database, so an offset between objects' angles does not count against it.
+    """
+    pos, neg = np.asarray(positive).ravel(), np.asarray(negative).ravel()
+    pos_groups, neg_groups = np.asarray(positive_groups).ravel(), np.asarray(negative_groups).ravel()
+    if pos.shape != pos_groups.shape or neg.shape != neg_groups.shape:
+        raise ValueError("each score needs one group label")
+    weighted, pairs = 0.0, 0
+    for group in np.intersect1d(pos_groups, neg_groups):
+        p, n = pos[pos_groups == group], neg[neg_groups == group]
+        weighted += auroc(p, n) * p.size * n.size
+        pairs += p.size * n.size
+    return weighted / pairs if pairs else float("nan")

@@ -61,6 +61,14 @@ def _match(surface, q: np.ndarray, u: np.ndarray, normal_weight: float, k: int):
     return c[rows, best].reshape(shape), m[rows, best].reshape(shape)
 
 
+def _as_arrays(poses, sensor_points, sensor_normals) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """-> poses (P, 4, 4) as a float64 copy, sensor points (L, 3) and unit sensor normals (L, 3), float64."""
+    T = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
+    s = np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(sensor_normals, dtype=np.float64).reshape(-1, 3)
+    return T, s, n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
 def _local(poses: np.ndarray, sensor_points: np.ndarray, sensor_normals: np.ndarray):
     """poses (P, 4, 4) -> contact points q and normals u in each pose's object frame, (P, L, 3)."""
     R, t = poses[:, :3, :3], poses[:, :3, 3]
@@ -86,10 +94,7 @@ def refine_poses(
     (L, 3) outward unit normals, world frame; normal_weight in m/rad (0: points only); offset (m) how
     far outside the surface the contact points should sit; k samples considered per match.
     """
-    T = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
-    s = np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3)
-    n = np.asarray(sensor_normals, dtype=np.float64).reshape(-1, 3)
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
     n_poses, n_sensors = T.shape[0], s.shape[0]
     if n_poses == 0:
         return T
@@ -135,10 +140,7 @@ def surface_losses(
     """How well each pose (P, 4, 4) makes the sensors touch the surface -> (distance (P,) m, angle (P,) rad):
     the mean over sensors of |point-to-plane residual| and of the angle between the contact normal and
     the matched surface normal (matching as in ``refine_poses``)."""
-    T = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    s = np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3)
-    n = np.asarray(sensor_normals, dtype=np.float64).reshape(-1, 3)
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
     q, u = _local(T, s, n)
     c, m = _match(surface, q, u, float(normal_weight), k)
     distance = np.abs(np.sum(m * (q - c), axis=-1) - offset).mean(axis=1)

@@ -6,7 +6,7 @@ import torch
 from omegaconf import OmegaConf
 
 from tactile6d import autoencoder as ae
-from tactile6d.errors import ArtifactError
+from tactile6d.errors import ArtifactError, ConfigError
 
 CONF = Path(__file__).resolve().parent.parent / "conf" / "ae"
 
@@ -107,12 +107,22 @@ def test_preprocess_with_peak_floor_gives_unit_peaks():
     assert float(x[1].abs().sum(dim=0).max()) == pytest.approx(1.0, rel=1e-5)
 
 
-def test_normalisation_dict_round_trip_and_old_checkpoints_without_peak_floor():
-    norm = ae.Normalisation(32, 24, (1.0, 2.0, 3.0), peak_floor=20.0)
+def test_normalisation_dict_round_trip_and_old_checkpoints_without_peak_floor_or_offset():
+    norm = ae.Normalisation(32, 24, (1.0, 2.0, 3.0), peak_floor=20.0, offset=0.5)
     assert ae.Normalisation.from_dict(norm.to_dict()) == norm
-    assert ae.Normalisation.from_dict({"height": 32, "width": 24, "scale": [1, 2, 3]}).peak_floor is None
+    old = ae.Normalisation.from_dict({"height": 32, "width": 24, "scale": [1, 2, 3]})
+    assert old.peak_floor is None and old.offset == 0.0
     with pytest.raises(ValueError, match="peak_floor"):
         ae.Normalisation.from_dict({**norm.to_dict(), "peak_floor": 0.0})
+
+
+@pytest.mark.parametrize("key, value", [
+    ("input_offset", float("nan")), ("peak_floor", 0.0), ("bootstrap_fraction", 0.0), ("kernel_size", 4),
+    ("device", "tpu"),
+])
+def test_bad_ae_settings_are_config_errors_naming_the_key(key, value):
+    with pytest.raises(ConfigError, match=f"ae.{key}"):
+        ae.AEConfig.from_cfg(small_cfg(**{key: value}))
 
 
 def test_bootstrapped_l2_is_mean_of_largest_quarter():
@@ -174,14 +184,28 @@ def test_latent_angles_match_a_naive_reference():
     assert ae.latent_angles(np.zeros((1, 128)), h_nc)[0] == pytest.approx(np.pi / 2)
 
 
-def test_training_with_a_peak_floor_keeps_it_in_the_normalisation(tmp_path, small_set):
+def test_training_with_a_peak_floor_and_offset_keeps_them_in_the_normalisation(tmp_path, small_set):
     bg, imgs = small_set
-    cfg = small_cfg(epochs=1, peak_floor=20.0)
+    cfg = small_cfg(epochs=1, peak_floor=20.0, input_offset=0.5)
     model, norm, _ = ae.train(imgs[:24], bg, cfg, seed=0, progress=False)
-    assert norm.peak_floor == 20.0
+    assert norm.peak_floor == 20.0 and norm.offset == 0.5
     ae.save_checkpoint(tmp_path / "ae.pt", model, norm, cfg, {})
     _, norm2, cfg2 = ae.load_checkpoint(tmp_path / "ae.pt")
-    assert norm2 == norm and cfg2["peak_floor"] == 20.0
+    assert norm2 == norm and cfg2["peak_floor"] == 20.0 and cfg2["input_offset"] == 0.5
+    # The scale is the RMS of the offset input, so the constant dominates it: about 0.5 per channel.
+    assert all(0.4 < s < 0.6 for s in norm.scale)
+
+
+def test_the_offset_turns_the_no_contact_image_into_a_uniform_nonzero_input():
+    bg = background()
+    pressed = bg.astype(int)
+    pressed[100:140, 80:120] += 40
+    imgs = np.stack([bg, np.clip(pressed, 0, 255).astype(np.uint8)])
+    norm = ae.Normalisation(height=64, width=48, scale=(0.5, 0.5, 0.5), peak_floor=20.0, offset=0.5)
+    x = ae.preprocess(imgs, bg, norm)
+    assert torch.all(x[0] == 1.0)
+    contact = x[1] - x[0]
+    assert float(contact.abs().sum(dim=0).max()) == pytest.approx(2.0, rel=1e-5)  # unit peak / scale 0.5
 
 
 def test_checkpoint_round_trip(tmp_path, small_set):

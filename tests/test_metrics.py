@@ -127,3 +127,19 @@ def test_auroc_against_pairwise_counting():
     pairs = (pos[:, None] > neg[None, :]).mean() + 0.5 * (pos[:, None] == neg[None, :]).mean()
     assert M.auroc(pos, neg) == pytest.approx(pairs)
     assert M.auroc([2.0, 3.0], [0.0, 1.0]) == 1.0 and M.auroc([0.0], [1.0]) == 0.0
+
+
+def test_auroc_within_groups_counts_only_same_group_pairs():
+    rng = np.random.default_rng(1)
+    pos, neg = rng.normal(1.0, 1.0, 50), rng.normal(0.0, 1.0, 40)
+    pos_groups, neg_groups = rng.integers(0, 4, 50), rng.integers(1, 5, 40)  # group 0 and 4 have one side only
+    pos[pos_groups == 3] += 10.0  # an offset of one group: only its own pairs see it
+    same = pos_groups[:, None] == neg_groups[None, :]
+    wins = (pos[:, None] > neg[None, :]) + 0.5 * (pos[:, None] == neg[None, :])
+    assert M.auroc_within_groups(pos, neg, pos_groups, neg_groups) == pytest.approx(wins[same].mean())
+    # A constant offset between groups, which pooled AUROC punishes, leaves it unchanged:
+    shifted_pos, shifted_neg = pos + 5.0 * pos_groups, neg + 5.0 * neg_groups
+    assert M.auroc_within_groups(shifted_pos, shifted_neg, pos_groups, neg_groups) == pytest.approx(wins[same].mean())
+    assert np.isnan(M.auroc_within_groups([1.0], [0.0], ["a"], ["b"]))
+    with pytest.raises(ValueError):
+        M.auroc_within_groups([1.0, 2.0], [0.0], ["a"], ["a"])
