@@ -1,4 +1,5 @@
-"""Stages train_ae and encode_database, tiny and end to end: training set -> model -> database latents."""
+"""Stages train_ae, encode_database and ae_quality, tiny and end to end: training set -> model -> database
+latents -> quality figures."""
 
 import json
 
@@ -53,3 +54,22 @@ def test_encoding_without_a_model_names_train_ae(artifacts, tmp_path, data_dir):
     (tmp_path / "databases" / "prim_box.h5").write_bytes(layout.database_file(artifacts, "prim_box").read_bytes())
     with pytest.raises(ArtifactError, match="train_ae"):
         encode_database.main(["--object", "prim_box", *common])
+
+
+def test_quality_report_on_one_object(artifacts, data_dir):
+    """ae_quality end to end: two rendered scenes of the box stand in for the paper's triplets."""
+    import shutil
+
+    from stages import ae_quality, make_scenes
+
+    common = [f"paths.artifacts_dir={artifacts}", f"paths.data_dir={data_dir}", "objects.names=[prim_box]"]
+    assert make_scenes.main(["--scene-set", "validation", *common, "scenes.validation.scenes_per_object=2"]) == 0
+    shutil.copy(layout.scenes_file(artifacts, "validation"), layout.scenes_file(artifacts, "caddeo2023"))
+    assert ae_quality.main(common) == 0
+    figures = json.loads(layout.metrics_file(artifacts, "ae").read_text())
+    assert sum(figures["count_by_type"].values()) == 16  # every database point has a contact type
+    # With a single object every pair is a same-object pair: the within-object AUROCs are the pooled ones.
+    for pair in ("flat_edge", "edge_corner"):
+        assert figures[f"auroc_{pair}_within_object"] == pytest.approx(figures[f"auroc_{pair}"], nan_ok=True)
+    assert 0.0 <= figures["triplet_angle_gap_median"] <= figures["triplet_angle_gap_p90"] <= np.pi
+    assert (layout.ae_dir(artifacts) / "angles_by_type.png").stat().st_size > 0
