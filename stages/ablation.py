@@ -3,10 +3,10 @@
 Every variant of config section ``ablation.variants`` is merged over the ``select``, ``optimize`` and
 ``rank`` sections (method ``ours``; solver ``ablation.solver`` unless the variant sets its own), and each
 scene of the set is estimated from every subset of 1, 2 and 3 of its sensors (``tactile6d.sensor_subsets``,
-as in sensor_study). Variants run in ``ablation.workers`` processes; two variants that come out as the same settings (e.g.
-the last step of the chain and ``default``) are estimated once. Reads the scenes and each object's
-artifacts; writes ``artifacts/metrics/ablation_<set>.json``: variant -> ``L1``/``L2``/``L3`` -> the
-evaluation's metric names, plus ``time_s_median`` (per estimate).
+as in sensor_study). Variants run in ``ablation.workers`` processes; two variants that come out as the
+same settings (e.g. the last step of the chain and ``default``) are estimated once. Reads the scenes and
+each object's artifacts; writes ``artifacts/metrics/ablation_<set>.json``: variant -> ``L1``/``L2``/``L3``
+-> the evaluation's metric names, plus ``time_s_median`` (per estimate).
 """
 
 from __future__ import annotations
