@@ -5,8 +5,10 @@ tactile6d.superquadrics.sample_training_contacts) and ``render`` (the simulator 
 from the data directory). Writes ``artifacts/training_set.h5`` (schema ``training_set``,
 tactile6d.database): the images and contact masks stored compactly, and per image its sensor pose in
 the shape's frame, the shape (``shape_index``, semi-axes, exponents e1 and e2), press depth, roll, contact
-kind (``superquadrics.KIND_NAMES``: the kind of the mesh vertex nearest to the contact point) and whether
-the shape enters the sensor body (``body_contact``, rendered anyway, as TACTO would).
+kind (``superquadrics.KIND_NAMES``: the kind of the mesh vertex nearest to the contact point), contact type
+(``contact_types``: tactile6d.contact's classifier, the one that labels the YCB database points, applied
+to the shape's mesh; train_ae ranks latent angles by it) and whether the shape enters the sensor body
+(``body_contact``, rendered anyway, as TACTO would).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from tactile6d import database, layout
+from tactile6d import contact, database, layout
 from tactile6d import superquadrics as sq
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore
@@ -65,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
 
     groups = shape_groups(contacts)
     kinds = np.empty(n, dtype=np.uint8)
+    contact_types = np.empty(n, dtype=np.int8)
     body = np.empty(n, dtype=bool)
     background = load_background(cfg, DataStore(cfg.paths))
     with DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False) as renderer:
@@ -74,7 +77,10 @@ def main(argv: list[str] | None = None) -> int:
                 # the mesh the contacts were drawn on (deterministic from the shape and the mesh settings)
                 mesh = sq.superquadric_mesh(contacts[a].shape, float(ts.mesh_max_edge), float(ts.mesh_max_turn))
                 database.render_compact(renderer, mesh_arrays(mesh), poses[a:b], images, progress=bar.update)
-                kinds[a:b] = contact_kinds(mesh, surface_points(poses[a:b], depths[a:b]), float(ts.sharp_radius))
+                touched = surface_points(poses[a:b], depths[a:b])
+                kinds[a:b] = contact_kinds(mesh, touched, float(ts.sharp_radius))
+                contact_types[a:b] = contact.classify_contacts(contact.sample_surface(mesh), touched,
+                                                               contact_normals(poses[a:b]))
                 body[a:b] = database.body_contacts(mesh.vertices, poses[a:b])
     shape_index = np.concatenate([np.full(b - a, k) for k, (a, b) in enumerate(groups)])
     no_contact = add_noise(images.background, float(cfg.render.noise_std), int(noise_seeds[-1]))
@@ -90,11 +96,13 @@ def main(argv: list[str] | None = None) -> int:
             "depths": depths,
             "rolls": np.array([c.roll for c in contacts]),
             "kinds": kinds,
+            "contact_types": contact_types,
             "no_contact": no_contact,
             "body_contact": body,
             **images.datasets(float(cfg.render.noise_std), noise_seeds[:-1]),
         },
-        attrs={"kind_names": list(sq.KIND_NAMES), "n_shapes": len(groups)},
+        attrs={"kind_names": list(sq.KIND_NAMES), "contact_type_names": list(contact.CONTACT_TYPES),
+               "n_shapes": len(groups)},
         config={"training_set": section_to_dict(cfg, "training_set"), "render": section_to_dict(cfg, "render")},
     )
     size = path.stat().st_size
@@ -104,6 +112,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{size / 2**20:.1f} MB ({size / n / 1024:.1f} KB per image); contact in "
         f"{np.count_nonzero(images.mask_pixels)}; kinds "
         + ", ".join(f"{name} {c}" for name, c in zip(sq.KIND_NAMES, counts))
+        + "; contact types "
+        + ", ".join(f"{name} {int(np.sum(contact_types == code))}" for code, name in enumerate(contact.CONTACT_TYPES))
         + f"; shape inside the sensor body in {int(body.sum())}"
     )
     return 0

@@ -1,6 +1,7 @@
 """Stage train_ae: train the object-agnostic autoencoder on the superquadric training set only.
 
-Reads ``artifacts/training_set.h5`` and config section ``ae``. Writes ``artifacts/ae/model.pt`` (weights,
+Reads ``artifacts/training_set.h5`` and config section ``ae``. With ``ae.rank_weight`` > 0 the loss also
+orders the latent angles by the training images' contact types (tactile6d.autoencoder). Writes ``artifacts/ae/model.pt`` (weights,
 normalisation, config, history), ``artifacts/ae/training_curve.csv`` (DVC plot: loss per epoch) and
 ``artifacts/ae/train.json`` (training time and final losses).
 """
@@ -10,10 +11,10 @@ from __future__ import annotations
 import sys
 import time
 
-from tactile6d import autoencoder, layout
+from tactile6d import autoencoder, contact, layout
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.database import StoredImages
-from tactile6d.errors import exit_on_error
+from tactile6d.errors import ArtifactError, exit_on_error
 from tactile6d.io import read_artifact, write_json, write_text
 
 
@@ -22,15 +23,23 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     training_set = read_artifact(layout.training_set_file(artifacts), "training_set")
     images = StoredImages(training_set)
+    sharpness = None
+    if autoencoder.AEConfig.from_cfg(section_to_dict(cfg, "ae")).rank_weight > 0.0:
+        if "contact_types" not in training_set.data:
+            raise ArtifactError("the training set has no contact_types, which ae.rank_weight > 0 needs; it predates "
+                                "them: run `dvc repro make_training_set`")
+        sharpness = contact.sharpness_ranks(training_set["contact_types"])
     start = time.perf_counter()
     model, norm, history = autoencoder.train(images, training_set["background"], section_to_dict(cfg, "ae"),
-                                             seed=int(cfg.ae.seed))
+                                             seed=int(cfg.ae.seed), sharpness=sharpness,
+                                             no_contact=training_set["no_contact"])
     seconds = time.perf_counter() - start
     autoencoder.save_checkpoint(layout.ae_checkpoint(artifacts), model, norm, section_to_dict(cfg, "ae"), history)
 
     out = layout.ae_dir(artifacts)
-    rows = ["epoch,train_loss,val_loss"] + [
-        f"{e + 1},{t:.6g},{v:.6g}" for e, (t, v) in enumerate(zip(history["train_loss"], history["val_loss"]))
+    rows = ["epoch,train_loss,val_loss,rank_loss"] + [
+        f"{e + 1},{t:.6g},{v:.6g},{r:.6g}"
+        for e, (t, v, r) in enumerate(zip(history["train_loss"], history["val_loss"], history["rank_loss"]))
     ]
     write_text(out / "training_curve.csv", "\n".join(rows) + "\n")
     write_json(out / "train.json", {
@@ -40,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
         "n_val": history["n_val"],
         "final_train_loss": history["train_loss"][-1],
         "final_val_loss": history["val_loss"][-1],
+        "final_rank_loss": history["rank_loss"][-1],
         "device": history["device"],
     })
     print(f"train_ae: {len(images)} images, {len(history['train_loss'])} epochs in {seconds:.0f} s, "

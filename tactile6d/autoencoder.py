@@ -30,19 +30,35 @@ the angle saturates (medians 1.54 rad corner, 1.63 edge, 1.89 curved, 1.94 flat)
 no-contact input is the level on which every training imprint sits, and the angle grows with the
 imprint over a range twice as wide (1.02 corner, 1.14 edge, 1.41 curved, 1.58 flat; with floor 20).
 
-Measured (default training set and seed; stage ae_quality's figures): latent-angle AUROC flat/edge,
-edge/corner, and edge/corner within an object, on the YCB databases:
-- neither switch (the default): 0.951 / 0.620 / 0.715;
-- peak floor 20 alone: 0.976 / 0.623 / 0.726;
-- floor 20 and offset 0.5: 0.954 / 0.655 / 0.789 (seed 1: 0.976 / 0.674 / 0.785);
-- floor 20 and an offset of 10 added after the RMS scaling (a first form of the switch, not kept):
-  0.992 / 0.637 / 0.767; 30 diverged.
-Both are nevertheless off by default, because the pose estimates on the validation scenes did not gain.
-Default method, floor 20 and offset 0.5 against neither, for L = 1 / 2 / 3 sensors: position 5.32 /
-2.41 / 1.15 cm against 5.48 / 2.54 / 1.02, contact accuracy 45.8 / 47.5 / 47.5 % against 50.8 / 46.7 /
-52.5; select.delta_h 0.16 or 0.20 instead of 0.12 (the angles spread twice as wide) did not change that.
-Peak normalisation alone gave 40 % contact accuracy at L = 3, against 55 % without it in the defaults of
-the time (before normal_max_sensors).
+Angle ranking (``rank_weight``, ``rank_margin``; weight 0 turns it off, as in the paper). Reconstruction
+alone does not make the angle to no contact mean anything in particular; selection relies on it telling
+contact types apart. The training images carry contact types from the classifier that labels the YCB
+database points (tactile6d.contact, applied to the superquadric mesh by make_training_set), so the loss
+adds ``rank_weight`` times a hinge on the cosine to the no-contact latent (``angle_ranking_loss``): within
+each batch a corner should sit at least ``rank_margin`` closer in cosine to no contact than an edge, an
+edge than a flat patch; curved contacts are not ranked. The no-contact latent is re-encoded with every
+batch. The model still never sees an object image; the AUROCs below measure how far an ordering learnt
+on superquadrics carries over to the YCB objects under the same labelling rule.
+
+Measured (default training set, seed 0 unless stated; stage ae_quality's figures and throw-away runs of
+the same code): latent-angle AUROC flat/edge, edge/corner, and edge/corner within an object, on the YCB
+databases, and the median triplet angle gap (rad):
+- reconstruction only (the paper's loss): 0.951 / 0.620 / 0.715, gap 0.111;
+- ranking, weight 3, margin 0.2 (the default): 0.999 / 0.790 / 0.835, gap 0.054; seed 1: 0.999 / 0.753 /
+  0.790, gap 0.078;
+- weight 3, margin 0.3: 0.9995 / 0.799 / 0.837, gap 0.086; weight 10, margin 0.3: 0.999 / 0.778 / 0.808,
+  gap 0.072; weight 1, margin 0.1: 0.997 / 0.731 / 0.770, gap 0.066;
+- weight 1, margin 0.1, ranked by the generator's own kinds (surface / edge / corner of the nearest mesh
+  vertex) instead of the classifier: 0.999 / 0.675 / 0.761, gap 0.059;
+- no ranking, peak floor 20 alone: 0.976 / 0.623 / 0.726; floor 20 and offset 0.5: 0.954 / 0.655 / 0.789
+  (seed 1: 0.976 / 0.674 / 0.785); floor 20 and an offset of 10 added after the RMS scaling (a first
+  form of the switch, not kept): 0.992 / 0.637 / 0.767; 30 diverged.
+Pose estimates on the validation scenes (default method, L = 1 / 2 / 3 sensors): with the ranking
+(weight 3, margin 0.2) position 5.56 / 2.31 / 0.99 cm and contact accuracy 61.7 / 43.3 / 45.0 %, against
+5.48 / 2.54 / 1.02 cm and 50.8 / 46.7 / 52.5 % with reconstruction only; with floor 20 and offset 0.5
+5.32 / 2.41 / 1.15 cm and 45.8 / 47.5 / 47.5 % (select.delta_h 0.16 or 0.20 instead of 0.12 did not
+change that), which is why the peak floor and offset stay off. Peak normalisation alone gave 40 % contact
+accuracy at L = 3, against 55 % without it in the defaults of the time (before normal_max_sensors).
 
 Arrays: images are uint8 ``(n, 320, 240, 3)`` (rows along the sensor's z axis, 240 columns along y; the
 colour order is whatever the caller uses, consistently); a background is ``(320, 240, 3)``. Model tensors
@@ -72,7 +88,8 @@ CHECKPOINT_FORMAT = "tactile6d-autoencoder-v1"
 # Made by stage encode_database: the database latents (M, 128), the no-contact latent (128,) and each
 # database image's latent angle (M,) in radians.
 register_schema(Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")))
-_OPTIONAL_KEYS = ("peak_floor", "input_offset")  # absent in configs and checkpoints older than these switches
+# absent in configs and checkpoints older than these switches
+_OPTIONAL_KEYS = ("peak_floor", "input_offset", "rank_weight", "rank_margin")
 _CHECKPOINT_KEYS = ("format", "state_dict", "norm", "cfg", "history")
 # Images preprocessed at once: bounds the float32 copy of full-size images (about 0.9 MB each).
 _PREPROCESS_CHUNK = 256
@@ -96,6 +113,8 @@ class AEConfig:
     device: str
     peak_floor: float | None = None
     input_offset: float = 0.0
+    rank_weight: float = 0.0
+    rank_margin: float = 0.1
 
     @classmethod
     def from_cfg(cls, cfg: Mapping | AEConfig) -> AEConfig:
@@ -121,6 +140,8 @@ class AEConfig:
             device=str(cfg["device"]),
             peak_floor=None if cfg.get("peak_floor") is None else float(cfg["peak_floor"]),
             input_offset=float(cfg.get("input_offset", 0.0)),
+            rank_weight=float(cfg.get("rank_weight", 0.0)),
+            rank_margin=float(cfg.get("rank_margin", 0.1)),
         )
         if len(channels) != 4 or min(channels) < 1:
             raise ConfigError(f"ae.channels must be 4 positive integers, got {list(channels)}")
@@ -134,6 +155,10 @@ class AEConfig:
             raise ConfigError(f"ae.device must be auto, cpu or cuda, got {out.device!r}")
         if not np.isfinite(out.input_offset):
             raise ConfigError(f"ae.input_offset must be a finite number, got {out.input_offset}")
+        if not (np.isfinite(out.rank_weight) and out.rank_weight >= 0.0):
+            raise ConfigError(f"ae.rank_weight must be >= 0 (0: reconstruction loss only), got {out.rank_weight}")
+        if not (np.isfinite(out.rank_margin) and 0.0 <= out.rank_margin <= 2.0):
+            raise ConfigError(f"ae.rank_margin must be in [0, 2] (a difference of cosines), got {out.rank_margin}")
         if out.peak_floor is not None and not out.peak_floor > 0:
             raise ConfigError(f"ae.peak_floor must be null (off) or > 0, got {out.peak_floor}")
         if min(out.input_height, out.input_width, out.latent_dim, out.epochs, out.batch_size, out.threads) < 1:
@@ -245,6 +270,21 @@ def bootstrapped_l2(recon: torch.Tensor, target: torch.Tensor, fraction: float) 
     err = ((recon - target) ** 2).sum(dim=1).flatten(1)
     k = max(1, round(fraction * err.shape[1]))
     return err.topk(k, dim=1, sorted=False).values.mean()
+
+
+def angle_ranking_loss(cos_nc: torch.Tensor, sharpness: torch.Tensor, margin: float) -> torch.Tensor:
+    """Hinge loss that orders latent angles by how sharp the contact is (module docstring).
+
+    cos_nc (n,): cosine similarity of each image's latent to the no-contact latent, i.e. cos(angle);
+    sharpness (n,) int: a rank (0 flat, 1 edge, 2 corner) or -1 for images left out (curved contacts).
+    For every pair (i, j) with sharpness[i] > sharpness[j] >= 0, the sharper contact i should lie closer
+    to no contact: ``max(0, margin - (cos_nc[i] - cos_nc[j]))``. Returns the mean over those pairs, or 0
+    when the batch has none.
+    """
+    ordered = (sharpness[:, None] > sharpness[None, :]) & (sharpness[None, :] >= 0)
+    if not bool(ordered.any()):
+        return cos_nc.new_zeros(())
+    return torch.relu(margin - (cos_nc[:, None] - cos_nc[None, :]))[ordered].mean()
 
 
 # --- input preprocessing -----------------------------------------------------------------------------
@@ -382,6 +422,8 @@ def train(
     seed: int,
     progress: bool = True,
     val_fraction: float | None = None,
+    sharpness: np.ndarray | None = None,
+    no_contact: np.ndarray | None = None,
 ) -> tuple[TactileAutoencoder, Normalisation, dict]:
     """Train an autoencoder to reconstruct tactile images.
 
@@ -390,8 +432,13 @@ def train(
     ``cfg.val_fraction``. Adam, shuffled mini-batches; the same inputs, config and seed give the same
     weights bit for bit on the same machine and thread count.
 
+    With ``cfg.rank_weight`` > 0 the loss adds ``rank_weight * angle_ranking_loss`` over each batch, which
+    needs ``sharpness`` (n,) int (see ``angle_ranking_loss``) and ``no_contact`` (320, 240, 3), the
+    no-contact image whose latent the angles are measured from (noise included, as the databases have it).
+
     Returns the model (eval mode, on the training device), its Normalisation, and a history dict:
-    ``train_loss``, ``val_loss`` (NaN when there is no validation split), ``seconds`` (wall clock) and
+    ``train_loss``, ``val_loss`` (reconstruction only; NaN when there is no validation split),
+    ``rank_loss`` (the ranking term's mean over batches, 0 when it is off), ``seconds`` (wall clock) and
     ``cpu_seconds`` (this process, all threads; on a shared machine their ratio shows the contention),
     per-epoch lists; ``preprocess_seconds``, ``n_train``, ``n_val``, ``seed``, ``device``.
     """
@@ -402,6 +449,14 @@ def train(
     n = images.shape[0]
     if n < 2 and vf > 0.0:
         raise InputError(f"need at least 2 images to train with a validation split, got {n}")
+    ranking = c.rank_weight > 0.0
+    if ranking:
+        if sharpness is None or no_contact is None:
+            raise InputError("ae.rank_weight > 0 needs each training image's sharpness and the no-contact image")
+        sharpness = np.asarray(sharpness)
+        if sharpness.shape != (n,):
+            raise InputError(f"sharpness must have shape ({n},), got {sharpness.shape}")
+        _check_images(np.asarray(no_contact)[None], background)
     with _deterministic(seed, c.threads, device):
         t0 = time.perf_counter()
         x = torch.empty((n, 3, c.input_height, c.input_width), dtype=torch.float32)
@@ -415,9 +470,14 @@ def train(
         scale = torch.tensor(norm.scale, dtype=torch.float32)[None, :, None, None]
         x_train /= scale
         x_val /= scale
+        if ranking:
+            sharp_train = torch.from_numpy(sharpness.astype(np.int64)[train_idx])
+            x_nc = (_unscaled_input(np.asarray(no_contact)[None], background, c.input_height, c.input_width,
+                                    c.peak_floor, c.input_offset) / scale).to(device)
         history = {
             "train_loss": [],
             "val_loss": [],
+            "rank_loss": [],
             "seconds": [],
             "cpu_seconds": [],
             "preprocess_seconds": time.perf_counter() - t0,
@@ -439,15 +499,28 @@ def train(
             t_epoch, cpu_epoch = time.perf_counter(), time.process_time()
             model.train()
             order = torch.randperm(x_train.shape[0], generator=shuffler)
-            total = 0.0
+            total, total_rank, batches = 0.0, 0.0, 0
             for sl in _chunks(x_train.shape[0], c.batch_size):
                 xb = x_train[order[sl]].to(device)
-                loss = bootstrapped_l2(model(xb), xb, c.bootstrap_fraction)
+                if ranking:
+                    # The no-contact input rides along in the batch, so its latent moves with the weights.
+                    h = model.encode(torch.cat([xb, x_nc]))
+                    h, h_nc = h[:-1], h[-1:]
+                    loss = bootstrapped_l2(model.decode(h), xb, c.bootstrap_fraction)
+                    rank = angle_ranking_loss(F.cosine_similarity(h, h_nc, dim=1),
+                                              sharp_train[order[sl]].to(device), c.rank_margin)
+                    total_rank += rank.item()
+                    objective = loss + c.rank_weight * rank
+                else:
+                    loss = bootstrapped_l2(model(xb), xb, c.bootstrap_fraction)
+                    objective = loss
                 optimiser.zero_grad(set_to_none=True)
-                loss.backward()
+                objective.backward()
                 optimiser.step()
                 total += loss.item() * xb.shape[0]
+                batches += 1
             history["train_loss"].append(total / x_train.shape[0])
+            history["rank_loss"].append(total_rank / max(1, batches))
             history["val_loss"].append(
                 _mean_loss(model, x_val, c.batch_size, c.bootstrap_fraction, device) if len(val_idx) else float("nan")
             )

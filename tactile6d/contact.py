@@ -170,6 +170,13 @@ def classify_contacts(
     return np.array([_classify_one(samples, p, n, rule) for p, n in zip(on_surface, normals)], dtype=np.int64)
 
 
+def sharpness_ranks(codes: np.ndarray) -> np.ndarray:
+    """Contact type codes (...) -> int64 (...): how sharply the surface bends under the gel, as a rank:
+    flat 0, edge 1, corner 2; curved and ``NO_SURFACE`` -1, unranked (a curve may bend more gently or more
+    sharply than an edge). The autoencoder's ranking loss orders latent angles by it."""
+    return np.array([0, 1, 2, -1, -1], dtype=np.int64)[np.where(np.asarray(codes) == NO_SURFACE, 4, codes)]
+
+
 def contact_type_names(codes: np.ndarray) -> np.ndarray:
     """Codes (...) -> names (...) from ``CONTACT_TYPES``; ``NO_SURFACE`` -> "none"."""
     codes = np.asarray(codes)

@@ -17,7 +17,8 @@ def artifacts(tmp_path_factory, data_dir):
     root = tmp_path_factory.mktemp("artifacts")
     common = [f"paths.artifacts_dir={root}", f"paths.data_dir={data_dir}", "render.workers=1"]
     assert make_training_set.main([*common, "training_set.n_images=24", "training_set.n_shapes=3"]) == 0
-    ae = ["ae.epochs=2", "ae.input_height=32", "ae.input_width=24", "ae.channels=[4,8,8,16]", "ae.batch_size=8"]
+    ae = ["ae.epochs=2", "ae.input_height=32", "ae.input_width=24", "ae.channels=[4,8,8,16]", "ae.batch_size=8",
+          "ae.rank_weight=1.0"]
     assert train_ae.main([*common, *ae]) == 0
     assert prepare_object.main(["--object", "prim_box", *common, "prepare.collision=hull"]) == 0
     assert sample_surface.main(["--object", "prim_box", *common, "sample.M=16"]) == 0
@@ -30,9 +31,21 @@ def test_training_writes_a_loadable_checkpoint_and_a_curve(artifacts):
     model, norm, cfg = autoencoder.load_checkpoint(layout.ae_checkpoint(artifacts))
     assert (norm.height, norm.width) == (32, 24) and cfg["epochs"] == 2
     curve = (layout.ae_dir(artifacts) / "training_curve.csv").read_text().splitlines()
-    assert curve[0] == "epoch,train_loss,val_loss" and len(curve) == 3
+    assert curve[0] == "epoch,train_loss,val_loss,rank_loss" and len(curve) == 3
     summary = json.loads((layout.ae_dir(artifacts) / "train.json").read_text())
     assert summary["train_seconds"] > 0 and summary["n_train"] + summary["n_val"] == 24
+    assert summary["final_rank_loss"] >= 0.0
+
+
+def test_ranking_on_a_training_set_without_contact_types_names_make_training_set(artifacts, tmp_path, data_dir):
+    import h5py
+
+    (tmp_path / "training_set.h5").write_bytes(layout.training_set_file(artifacts).read_bytes())
+    with h5py.File(tmp_path / "training_set.h5", "a") as f:
+        del f["contact_types"]  # as written before the classifier labelled the training set
+    common = [f"paths.artifacts_dir={tmp_path}", f"paths.data_dir={data_dir}"]
+    with pytest.raises(ArtifactError, match="make_training_set"):
+        train_ae.main([*common, "ae.epochs=1", "ae.rank_weight=1.0"])
 
 
 def test_latents_match_a_direct_encoding(artifacts):

@@ -6,15 +6,17 @@ import torch
 from omegaconf import OmegaConf
 
 from tactile6d import autoencoder as ae
-from tactile6d.errors import ArtifactError, ConfigError
+from tactile6d.errors import ArtifactError, ConfigError, InputError
 
 CONF = Path(__file__).resolve().parent.parent / "conf" / "ae"
 
 
 def small_cfg(**over):
-    """A tiny model on 32x24 inputs, fast enough for unit tests."""
+    """A tiny model on 32x24 inputs, fast enough for unit tests; reconstruction loss only unless asked (the
+    blob images have no contact types)."""
     cfg = dict(OmegaConf.to_container(OmegaConf.load(CONF / "cpu.yaml")))
-    cfg.update(input_height=32, input_width=24, channels=[4, 8, 8, 16], epochs=2, batch_size=16, threads=1)
+    cfg.update(input_height=32, input_width=24, channels=[4, 8, 8, 16], epochs=2, batch_size=16, threads=1,
+               rank_weight=0.0)
     cfg.update(over)
     return cfg
 
@@ -118,7 +120,7 @@ def test_normalisation_dict_round_trip_and_old_checkpoints_without_peak_floor_or
 
 @pytest.mark.parametrize("key, value", [
     ("input_offset", float("nan")), ("peak_floor", 0.0), ("bootstrap_fraction", 0.0), ("kernel_size", 4),
-    ("device", "tpu"),
+    ("device", "tpu"), ("rank_weight", -1.0), ("rank_margin", float("inf")),
 ])
 def test_bad_ae_settings_are_config_errors_naming_the_key(key, value):
     with pytest.raises(ConfigError, match=f"ae.{key}"):
@@ -255,3 +257,34 @@ def test_bad_checkpoints_raise_artifact_errors(tmp_path):
     payload["cfg"]["channels"] = (4, 8, 8, 32)
     torch.save(payload, wrong_shape)
     _expect_artifact_error(wrong_shape, "weights do not fit its config")
+
+
+def test_angle_ranking_loss_matches_a_naive_pair_loop():
+    rng = np.random.default_rng(2)
+    cos = torch.from_numpy(rng.uniform(-1, 1, size=12))
+    sharp = torch.from_numpy(rng.integers(-1, 3, size=12))
+    terms = [max(0.0, 0.3 - (float(cos[i]) - float(cos[j])))
+             for i in range(12) for j in range(12) if sharp[i] > sharp[j] >= 0]
+    assert terms  # the draw has ordered pairs
+    assert float(ae.angle_ranking_loss(cos, sharp, 0.3)) == pytest.approx(np.mean(terms), rel=1e-12)
+    # A correctly ordered batch with room to spare costs nothing; unranked or single-rank batches too.
+    assert float(ae.angle_ranking_loss(torch.tensor([0.9, 0.5, 0.1]), torch.tensor([2, 1, 0]), 0.3)) == 0.0
+    assert float(ae.angle_ranking_loss(cos, torch.full((12,), -1), 0.3)) == 0.0
+    assert float(ae.angle_ranking_loss(cos, torch.ones(12, dtype=torch.int64), 0.3)) == 0.0
+
+
+def test_the_ranking_term_puts_sharp_contacts_closer_to_no_contact(small_set):
+    """Label the small blobs sharp and the large ones flat: with the ranking term the small blobs' angles
+    end up below the large ones' on the training images."""
+    bg, imgs = small_set
+    area = (np.abs(imgs.astype(int) - bg.astype(int)).sum(-1) > 30).sum(axis=(1, 2))
+    sharp = np.where(area < np.median(area), 2, 0)
+    cfg = small_cfg(epochs=6, batch_size=8, rank_weight=5.0, rank_margin=0.2, val_fraction=0.0)
+    model, norm, hist = ae.train(imgs, bg, cfg, seed=0, progress=False, sharpness=sharp, no_contact=bg)
+    assert len(hist["rank_loss"]) == 6 and hist["rank_loss"][-1] < hist["rank_loss"][0]
+    angles = ae.latent_angles(ae.encode(model, norm, imgs, bg), ae.encode(model, norm, bg[None], bg)[0])
+    assert np.median(angles[sharp == 2]) < np.median(angles[sharp == 0])
+    with pytest.raises(InputError, match="sharpness"):
+        ae.train(imgs, bg, cfg, seed=0, progress=False)
+    with pytest.raises(InputError, match=r"shape \(64,\)"):
+        ae.train(imgs, bg, cfg, seed=0, progress=False, sharpness=sharp[:10], no_contact=bg)

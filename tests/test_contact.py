@@ -153,3 +153,9 @@ def test_a_sensor_facing_away_from_every_surface_gets_no_type():
     codes = C.classify_contacts(box, np.array([[0.0, 0.0, 0.02]]), np.array([[0.0, 0.0, -1.0]]))
     assert codes.tolist() == [C.NO_SURFACE]
     assert C.contact_type_names(codes).tolist() == ["none"]
+
+
+def test_sharpness_ranks_order_flat_edge_corner_and_leave_the_rest_out():
+    codes = np.array([C.FLAT, C.EDGE, C.CORNER, C.CURVED, C.NO_SURFACE])
+    assert C.sharpness_ranks(codes).tolist() == [0, 1, 2, -1, -1]
+    assert C.sharpness_ranks(codes.astype(np.int8).reshape(1, 5)).shape == (1, 5)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stages import make_training_set
-from tactile6d import database, layout, sensor
+from tactile6d import contact, database, layout, sensor
 from tactile6d import superquadrics as sq
 from tactile6d.config import compose_config
 from tactile6d.data import DataStore
@@ -42,6 +42,9 @@ def test_images_and_parameters(built):
     assert np.all((ts["depths"] >= lo) & (ts["depths"] <= hi))
     assert np.all(np.abs(ts["rolls"]) <= np.pi)
     assert set(ts["kinds"].tolist()) <= {0, 1, 2} and ts.attrs["kind_names"] == list(sq.KIND_NAMES)
+    # Every contact touches the shape, so the database points' classifier finds a type for each.
+    assert set(ts["contact_types"].tolist()) <= {0, 1, 2, 3}
+    assert ts.attrs["contact_type_names"] == list(contact.CONTACT_TYPES)
     assert np.mean(ts["mask_pixels"] > 0) >= 0.9
     assert ts.path.stat().st_size < N * 320 * 240 * 3 / 4
 
