@@ -34,3 +34,9 @@ def test_params_file_overrides(tmp_path):
         load_params(path, ["sample.nope=3"])
     with pytest.raises(ConfigError, match="not found"):
         load_params(tmp_path / "absent.yaml")
+
+
+def test_the_paper_preset_trains_the_autoencoder_on_reconstruction_alone():
+    assert compose_config().ae.rank_weight > 0
+    assert compose_config(["preset=paper"]).ae.rank_weight == 0
+    assert compose_config(["ae=paper"]).ae.rank_weight == 0
