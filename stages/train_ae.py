@@ -1,9 +1,9 @@
 """Stage train_ae: train the object-agnostic autoencoder on the superquadric training set only.
 
 Reads ``artifacts/training_set.h5`` and config section ``ae``. With ``ae.rank_weight`` > 0 the loss also
-orders the latent angles by the training images' contact types (tactile6d.autoencoder). Writes ``artifacts/ae/model.pt`` (weights,
-normalisation, config, history), ``artifacts/ae/training_curve.csv`` (DVC plot: loss per epoch) and
-``artifacts/ae/train.json`` (training time and final losses).
+orders the latent angles by the training images' contact types (tactile6d.autoencoder). Writes
+``artifacts/ae/model.pt`` (weights, normalisation, config, history), ``artifacts/ae/training_curve.csv``
+(DVC plot: losses per epoch) and ``artifacts/ae/train.json`` (training time and final losses).
 """
 
 from __future__ import annotations

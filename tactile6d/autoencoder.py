@@ -114,7 +114,7 @@ class AEConfig:
     peak_floor: float | None = None
     input_offset: float = 0.0
     rank_weight: float = 0.0
-    rank_margin: float = 0.1
+    rank_margin: float = 0.2
 
     @classmethod
     def from_cfg(cls, cfg: Mapping | AEConfig) -> AEConfig:
@@ -141,7 +141,7 @@ class AEConfig:
             peak_floor=None if cfg.get("peak_floor") is None else float(cfg["peak_floor"]),
             input_offset=float(cfg.get("input_offset", 0.0)),
             rank_weight=float(cfg.get("rank_weight", 0.0)),
-            rank_margin=float(cfg.get("rank_margin", 0.1)),
+            rank_margin=float(cfg.get("rank_margin", 0.2)),
         )
         if len(channels) != 4 or min(channels) < 1:
             raise ConfigError(f"ae.channels must be 4 positive integers, got {list(channels)}")
