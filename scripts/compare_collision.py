@@ -29,10 +29,12 @@ def main() -> None:
     for name in cfg.objects.names:
         mesh, _ = meshes.clean_mesh(meshes.load_mesh_file(store.path(f"ycb/{name}/textured_simple.obj")))
         builders = {
-            "coacd": lambda: meshes.convex_pieces_coacd(mesh, cfg.prepare.coacd_threshold, cfg.prepare.coacd_max_pieces, 0),
-            "caddeo2023": lambda: meshes.convex_pieces_from_files(
+            # default arguments bind this object's mesh and name (each builder runs in this iteration anyway)
+            "coacd": lambda mesh=mesh: meshes.convex_pieces_coacd(
+                mesh, cfg.prepare.coacd_threshold, cfg.prepare.coacd_max_pieces, 0),
+            "caddeo2023": lambda name=name: meshes.convex_pieces_from_files(
                 [store.path(r) for r in group_files(f"object:{name}") if "/collision_caddeo2023/" in r]),
-            "hull": lambda: [(np.asarray(mesh.convex_hull.vertices), np.asarray(mesh.convex_hull.faces))],
+            "hull": lambda mesh=mesh: [(np.asarray(mesh.convex_hull.vertices), np.asarray(mesh.convex_hull.faces))],
         }
         for method, build in builders.items():
             start = time.perf_counter()

@@ -25,11 +25,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import contact, evaluation, layout, scenes  # noqa: E402
-from tactile6d.config import compose_config  # noqa: E402
-from tactile6d.errors import InputError  # noqa: E402
-from tactile6d.estimator import Estimator  # noqa: E402
-from tactile6d.io import read_artifact  # noqa: E402
+from tactile6d import contact, evaluation, layout, scenes
+from tactile6d.config import compose_config
+from tactile6d.errors import InputError
+from tactile6d.estimator import Estimator
+from tactile6d.io import read_artifact
 
 
 def proxy_scenes(artifacts: str, objects: list[str], per_object: int, seed: int) -> dict:
@@ -94,8 +94,8 @@ def main() -> int:
         seconds.append(time.perf_counter() - t0)
         ref = references[obj]
         e = evaluation.scene_errors(poses, n, data["T_world_object"][s], T, ref.points, ref.surface, tree=ref.tree)
-        for key in rows:
-            rows[key].append(e[key])
+        for key, values in rows.items():
+            values.append(e[key])
         owners.append(obj)
     errors = {key: np.array(v) for key, v in rows.items()}
     summary = evaluation.summarise_by_object(errors, np.array(owners))

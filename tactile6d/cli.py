@@ -6,6 +6,7 @@ heavy dependencies (torch, jax) load only for that command.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import sys
 
@@ -41,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
                     return 2
                 raise
             rest = argv[len(words) :]
-            return exit_on_error(lambda: module.main(rest))
+            return exit_on_error(functools.partial(module.main, rest))
     print(usage(), file=sys.stdout if argv[:1] in (["-h"], ["--help"]) else sys.stderr)
     return 0 if argv[:1] in (["-h"], ["--help"]) else 2
 

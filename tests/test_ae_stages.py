@@ -6,7 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from stages import encode_database, make_training_set, prepare_object, render_database, sample_surface, train_ae
+from stages import (
+    encode_database,
+    make_training_set,
+    prepare_object,
+    render_database,
+    sample_surface,
+    train_ae,
+)
 from tactile6d import autoencoder, layout
 from tactile6d.errors import ArtifactError
 from tactile6d.io import read_artifact
@@ -28,7 +35,7 @@ def artifacts(tmp_path_factory, data_dir):
 
 
 def test_training_writes_a_loadable_checkpoint_and_a_curve(artifacts):
-    model, norm, cfg = autoencoder.load_checkpoint(layout.ae_checkpoint(artifacts))
+    _model, norm, cfg = autoencoder.load_checkpoint(layout.ae_checkpoint(artifacts))
     assert (norm.height, norm.width) == (32, 24) and cfg["epochs"] == 2
     curve = (layout.ae_dir(artifacts) / "training_curve.csv").read_text().splitlines()
     assert curve[0] == "epoch,train_loss,val_loss,rank_loss" and len(curve) == 3

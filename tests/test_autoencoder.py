@@ -138,7 +138,7 @@ def test_bootstrapped_l2_is_mean_of_largest_quarter():
 def test_training_reduces_the_loss(small_set):
     bg, imgs = small_set
     cfg = small_cfg(epochs=8, batch_size=8, channels=[8, 16, 16, 32])
-    model, norm, hist = ae.train(imgs, bg, cfg, seed=0, progress=False)
+    _model, norm, hist = ae.train(imgs, bg, cfg, seed=0, progress=False)
     assert len(hist["train_loss"]) == len(hist["val_loss"]) == len(hist["seconds"]) == 8
     assert hist["train_loss"][-1] < 0.9 * hist["train_loss"][0]
     assert min(hist["val_loss"]) < hist["val_loss"][0]

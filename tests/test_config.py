@@ -14,7 +14,7 @@ def test_committed_params_yaml_is_the_composed_config():
 
 def test_group_and_key_overrides():
     cfg = compose_config(["objects=primitives", "sample.M=50"])
-    assert list(cfg.objects.names)[0] == "prim_box"
+    assert next(iter(cfg.objects.names)) == "prim_box"
     assert cfg.sample.M == 50
 
 

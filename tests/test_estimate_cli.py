@@ -7,12 +7,16 @@ import numpy as np
 import pytest
 
 from stages import optimize, prepare_object, rank, sample_surface, select_tuples
-from tactile6d import cli
+from tactile6d import cli, layout
 from tactile6d import estimator as est
 from tactile6d import geometry as g
-from tactile6d import layout
 from tactile6d.config import compose_config
-from tactile6d.io import read_artifact, read_scene_dir, write_artifact, write_tactile_image
+from tactile6d.io import (
+    read_artifact,
+    read_scene_dir,
+    write_artifact,
+    write_tactile_image,
+)
 from tactile6d.scenes import SceneSet
 from tactile6d.sensor import sensor_poses_touching
 
@@ -166,7 +170,7 @@ def test_stages_agree_with_the_online_estimator(request, artifacts, scene, metho
 
 def test_bench_without_artifacts_says_so(capsys, tmp_path):
     code = cli.main(["bench", "estimate", "--artifacts", str(tmp_path), "--object", "004_sugar_box"])
-    out, err = capsys.readouterr()
+    _out, err = capsys.readouterr()
     assert code == 2
     assert err.startswith(f"error: no object has its artifacts in {tmp_path}") and "dvc repro" in err
 

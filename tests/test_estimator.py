@@ -299,7 +299,7 @@ def test_refinement_brings_an_off_grid_estimate_to_the_surface(world, off_grid):
     T, images = off_grid["T_world_sensors"], world["images"]
     plain = make_full_estimator(world, off_grid, **{"rank.refine": "false"}).estimate(T, images)
     refined = make_full_estimator(world, off_grid, **{"rank.refine": "true"}).estimate(T, images)
-    dt0, dr0 = pose_errors(plain.best, T_TRUE)
+    dt0, _dr0 = pose_errors(plain.best, T_TRUE)
     dt, dr = pose_errors(refined.best, T_TRUE)
     assert dt < 5e-4 and dr < 0.5 and dt < dt0
     assert 1 <= len(refined.poses) <= 5 and np.all(np.diff(refined.scores) >= 0)

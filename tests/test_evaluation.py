@@ -22,7 +22,7 @@ def scene(T_gt):
 
 
 def test_perfect_and_shifted_estimates(box):
-    mesh, surface, points = box
+    _mesh, surface, points = box
     T_gt = make_pose(np.eye(3), [0.1, 0.0, 0.2])
     sensors = scene(T_gt)
     shifted = T_gt @ make_pose(np.eye(3), [0.0, 0.0, 0.01])  # 1 cm off: a sensor now 1 cm inside
@@ -39,7 +39,7 @@ def test_perfect_and_shifted_estimates(box):
 
 
 def test_missing_estimates_count_as_failures(box):
-    mesh, surface, points = box
+    _mesh, surface, points = box
     T_gt = make_pose(np.eye(3), [0.1, 0.0, 0.2])
     sensors = scene(T_gt)
     good = evaluation.scene_errors(np.stack([T_gt] * 5), 5, T_gt, sensors, points, surface)
@@ -53,7 +53,7 @@ def test_missing_estimates_count_as_failures(box):
 
 
 def test_rotation_error_shows_in_rotation_auc_only_through_rotation(box):
-    mesh, surface, points = box
+    _mesh, surface, points = box
     T_gt = make_pose(np.eye(3), [0.1, 0.0, 0.2])
     rotated = make_pose(rotvec_to_rotmat([0, 0, 0.3]), [0.1, 0.0, 0.2])
     e = evaluation.scene_errors(np.stack([rotated]), 1, T_gt, scene(T_gt), points, surface, k=1)

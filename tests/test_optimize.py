@@ -234,7 +234,7 @@ def test_normal_term_recovers_the_pose_that_positions_leave_free(n_sensors):
 
 def test_normal_term_with_one_sensor_turns_the_random_rotation_onto_the_normal():
     rng = np.random.default_rng(3)
-    p, n, s, m, T = _normal_scene(rng, 1)
+    p, n, s, m, _T = _normal_scene(rng, 1)
     R0 = g.random_rotations(20, rng)
     fit = opt.fit_fast(np.repeat(p[None], 20, axis=0), s, R0, 5, (np.repeat(n[None], 20, axis=0), m), 0.01)
     np.testing.assert_allclose(np.einsum("nab,b->na", fit.poses[:, :3, :3], n[0]), np.repeat(m, 20, axis=0), atol=1e-9)
@@ -245,10 +245,10 @@ def test_normal_term_with_one_sensor_turns_the_random_rotation_onto_the_normal()
 def test_normal_term_prefers_the_tuple_whose_normals_agree():
     # Two tuples with the same points (same position loss); one has a flipped normal: its loss is higher.
     rng = np.random.default_rng(4)
-    p, n, s, m, T = _normal_scene(rng, 3)
+    p, n, s, m, _T = _normal_scene(rng, 3)
     bad = n.copy()
     bad[0] *= -1
     fit = opt.fit_fast(np.stack([p, p]), s, g.random_rotations(2, rng), 5, (np.stack([n, bad]), m), 0.01)
-    assert fit.losses[0] < 1e-6 < 1e-3 < fit.losses[1]
+    assert fit.losses[0] < 1e-6 and fit.losses[1] > 1e-3
     with pytest.raises(InputError):
         opt.tuples_to_poses(p, s, np.array([[0, 1, 2]]), "fast", rng, normal_weight=0.01)

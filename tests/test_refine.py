@@ -60,7 +60,7 @@ def test_refinement_recovers_a_slightly_wrong_pose(name, seed):
     assert np.degrees(g.rotation_angle(refined[:3, :3], T_true[:3, :3])) < 0.5
     d, a = refine.surface_losses(surface, refined[None], s, n)
     assert d[0] < 2e-4 and np.degrees(a[0]) < 0.5
-    d0, a0 = refine.surface_losses(surface, wrong[None], s, n)
+    _d0, a0 = refine.surface_losses(surface, wrong[None], s, n)
     assert a0[0] > a[0]
 
 

@@ -84,7 +84,7 @@ def test_rebuilt_images_equal_direct_renders(built):
 
 
 def test_masks_and_compression(built):
-    cfg, _, _, db = built
+    _cfg, _, _, db = built
     assert np.mean(db["mask_pixels"] > 0) >= 0.9  # a box: every sensor presses on a face
     size = db.path.stat().st_size
     raw = M * H * W * 3

@@ -41,7 +41,7 @@ def box():
 
 
 def test_body_penetration(box):
-    mesh, surface = box
+    _mesh, surface = box
     T = sensor_poses_touching([0.0, 0.0, 0.03], [0.0, 0.0, 1.0], 0.0, 0.0018)
     assert not scenes.body_penetrates(surface, T)
     T_deep = sensor_poses_touching([0.0, 0.0, 0.03], [0.0, 0.0, 1.0], 0.0, 0.004)  # body 0.4 mm into the face

@@ -7,7 +7,7 @@ from tactile6d import geometry as g
 from tactile6d import selection as sel
 from tactile6d.errors import InputError
 
-SELECT = dict(delta_start=5e-3, step_down=5e-4, step_up=1e-4, delta_max=5e-2)
+SELECT = {"delta_start": 5e-3, "step_down": 5e-4, "step_up": 1e-4, "delta_max": 5e-2}
 
 
 def _box_surface_points(n, rng, size=(0.1, 0.06, 0.16)):
@@ -54,7 +54,7 @@ def test_pair_distances_match_numpy_norm():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_pruned_join_equals_brute_force(n_sensors, seed):
     rng = np.random.default_rng(seed)
-    points, true, s = _scene(rng, 60, n_sensors, noise=0.002)
+    points, _true, s = _scene(rng, 60, n_sensors, noise=0.002)
     sizes = {1: 60, 2: 50, 3: 30, 4: 12}[n_sensors]
     omegas = [rng.choice(60, sizes, replace=False) for _ in range(n_sensors)]
     for delta in (1e-4, 1e-3, 4e-3, 2e-2, 0.2):
@@ -68,7 +68,7 @@ def test_pruned_join_keeps_a_tuple_exactly_at_the_float32_rounding_edge():
     # Sensor distances chosen equal to database distances, so errors are exactly 0 for the true
     # tuple and near the threshold for many others: the float32 pruning must still not drop any.
     rng = np.random.default_rng(5)
-    points, true, s = _scene(rng, 80, 3)
+    points, _true, s = _scene(rng, 80, 3)
     omegas = [np.arange(80)] * 3
     errors = sel.tuples_within_brute_force(points, s, omegas, 1.0)[1]
     for delta in np.quantile(errors, [1e-4, 1e-3, 1e-2]):
@@ -82,7 +82,7 @@ def test_pruned_join_keeps_a_tuple_exactly_at_the_float32_rounding_edge():
 @pytest.mark.parametrize("seed", [0, 3])
 def test_adaptive_threshold_follows_the_reference_rule(n_max, seed):
     rng = np.random.default_rng(seed)
-    points, true, s = _scene(rng, 120, 3, noise=0.001)
+    points, _true, s = _scene(rng, 120, 3, noise=0.001)
     omegas = [rng.choice(120, 40, replace=False) for _ in range(3)]
     result = sel.select_tuples(points, s, omegas, n_max, rng=rng, **SELECT)
     delta, tuples, errors = _reference_rule(points, s, omegas, n_max, **SELECT)
@@ -100,7 +100,7 @@ def test_adaptive_threshold_follows_the_reference_rule(n_max, seed):
 def test_raising_past_n_max_keeps_the_lowest_errors_ties_by_index():
     # Every point twice: tuples come in groups of equal error, so the count jumps from 0 past n_max = 3.
     rng = np.random.default_rng(3)
-    points, true, s = _scene(rng, 40, 3, noise=0.001)
+    points, _true, s = _scene(rng, 40, 3, noise=0.001)
     points = np.concatenate([points, points])
     omegas = [np.arange(80)] * 3
     result = sel.select_tuples(points, s, omegas, 3, rng=rng, **SELECT)
@@ -200,7 +200,7 @@ def _brute_lowest(points, s, omegas, n, normals=None, delta_max=SELECT["delta_ma
 @pytest.mark.parametrize("n_max", [1, 37, 500])
 def test_best_n_keeps_exactly_the_n_lowest_errors(n_sensors, n_max):
     rng = np.random.default_rng(n_max + n_sensors)
-    points, true, s = _scene(rng, 80, n_sensors, noise=0.002)
+    points, _true, s = _scene(rng, 80, n_sensors, noise=0.002)
     size = {2: 60, 3: 30, 4: 12}[n_sensors]
     omegas = [rng.choice(80, size, replace=False) for _ in range(n_sensors)]
     result = sel.select_tuples(points, s, omegas, n_max, rng=rng, rule="best_n", **SELECT)
@@ -213,7 +213,7 @@ def test_best_n_keeps_exactly_the_n_lowest_errors(n_sensors, n_max):
 
 def test_best_n_breaks_ties_by_index_order():
     rng = np.random.default_rng(3)
-    points, true, s = _scene(rng, 40, 3, noise=0.001)
+    points, _true, s = _scene(rng, 40, 3, noise=0.001)
     points = np.concatenate([points, points])  # every error appears (at least) twice
     omegas = [np.arange(80)] * 3
     for n_max in (3, 50):
@@ -242,7 +242,7 @@ def test_best_n_keeps_the_nearest_tuple_that_the_paper_rule_drops():
 
 def test_best_n_with_fewer_tuples_than_n_keeps_all_below_delta_max():
     rng = np.random.default_rng(2)
-    points, true, s = _scene(rng, 20, 3)
+    points, _true, s = _scene(rng, 20, 3)
     omegas = [np.arange(20)] * 3
     result = sel.select_tuples(points, s, omegas, 10**6, rng=rng, rule="best_n", **SELECT)
     expected, _, n_all = _brute_lowest(points, s, omegas, 10**6)
@@ -252,7 +252,7 @@ def test_best_n_with_fewer_tuples_than_n_keeps_all_below_delta_max():
 
 def test_unknown_rule_is_rejected():
     rng = np.random.default_rng(0)
-    points, true, s = _scene(rng, 20, 3)
+    points, _true, s = _scene(rng, 20, 3)
     with pytest.raises(InputError, match="rule"):
         sel.select_tuples(points, s, [np.arange(20)] * 3, 10, rng=rng, rule="nope", **SELECT)
 

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
+from test_estimator import write_tiny_autoencoder
 
 from stages import ablation, prepare_object, sample_surface, sensor_study
 from tactile6d import layout
@@ -14,7 +15,6 @@ from tactile6d.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.sensor import contact_normals, contact_points, sensor_poses_touching
 from tactile6d.sensor_subsets import sensor_subsets
-from test_estimator import write_tiny_autoencoder
 
 
 @pytest.fixture(scope="module")

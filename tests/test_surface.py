@@ -65,7 +65,7 @@ def test_random_points_are_area_weighted():
 
 def test_ycb_sampling(data_dir):
     mesh, _ = meshes.clean_mesh(meshes.load_mesh_file(data_dir / "ycb/004_sugar_box/textured_simple.obj"))
-    points, normals, faces = surface.sample_surface_even(mesh, 300, np.random.default_rng(0), oversample=10)
+    points, _normals, faces = surface.sample_surface_even(mesh, 300, np.random.default_rng(0), oversample=10)
     plane, bary = distance_to_own_triangle(mesh, points, faces)
     assert plane.max() < 1e-6 and bary.min() > -1e-6
     nn = surface.nearest_neighbour_distances(points)

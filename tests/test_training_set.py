@@ -79,7 +79,7 @@ def test_surface_points_invert_the_placement():
 
 
 def test_bad_count_and_corrupt_artifact(built, tmp_path):
-    cfg, ts = built
+    _cfg, _ts = built
     with pytest.raises(ConfigError):
         make_training_set.main([f"paths.artifacts_dir={tmp_path}", "training_set.n_images=0"])
     broken = tmp_path / "training_set.h5"

@@ -43,10 +43,14 @@ def summary(result: Estimate, cfg) -> list[str]:
     """A few human-readable lines: method, scores, selection diagnostics, time per step."""
     sel = result.selection
     lines = [
-        f"method {cfg.select.method}, solver {cfg.optimize.solver}: {len(result.poses)} distinct poses "
-        f"of {result.n_hypotheses} hypotheses",
-        f"best: score {1000 * result.scores[0]:.2f} mm = loss {1000 * result.losses[0]:.2f} mm "
-        f"+ deepest penetration {1000 * result.penetrations[0].max():.2f} mm",
+        (
+            f"method {cfg.select.method}, solver {cfg.optimize.solver}: {len(result.poses)} distinct poses "
+            f"of {result.n_hypotheses} hypotheses"
+        ),
+        (
+            f"best: score {1000 * result.scores[0]:.2f} mm = loss {1000 * result.losses[0]:.2f} mm "
+            f"+ deepest penetration {1000 * result.penetrations[0].max():.2f} mm"
+        ),
     ]
     omegas = ", ".join(str(n) for n in sel.omega_sizes)
     if cfg.select.method == "ours":
