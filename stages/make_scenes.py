@@ -19,7 +19,7 @@ from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, read_scene_dir, write_artifact
-from tactile6d.render import DigitRenderer, load_background
+from tactile6d.render import DigitRenderer, load_background_bgr
 
 SCENE_SETS = ("caddeo2023", "validation")
 
@@ -68,7 +68,7 @@ def generate_validation(object_names: list[str], cfg, store: DataStore, artifact
     meshes = {o: load_mesh(artifacts_dir, o) for o in object_names}
     surfaces = {o: contact.sample_surface(m) for o, m in meshes.items()}
     database = {o: read_artifact(layout.surface_file(artifacts_dir, o), "surface")["points"] for o in object_names}
-    renderer = DigitRenderer.from_config(cfg.render, load_background(cfg, store), workers=1)
+    renderer = DigitRenderer.from_config(cfg.render, load_background_bgr(cfg, store), workers=1)
 
     def render(obj, T_world_object, T_world_sensors, seed):
         return np.stack([renderer.render(meshes[obj], T_world_object, T, seed + i).image

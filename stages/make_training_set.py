@@ -26,7 +26,7 @@ from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore
 from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.io import write_artifact
-from tactile6d.render import DigitRenderer, add_noise, load_background, mesh_arrays
+from tactile6d.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
 from tactile6d.sensor import CONTACT_POINT, GEL_CENTER, contact_normals, contact_points
 
 
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     kinds = np.empty(n, dtype=np.uint8)
     contact_types = np.empty(n, dtype=np.int8)
     body = np.empty(n, dtype=bool)
-    background = load_background(cfg, DataStore(cfg.paths))
+    background = load_background_bgr(cfg, DataStore(cfg.paths))
     with DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False) as renderer:
         images = database.CompactImages(renderer.background)
         with tqdm(total=n, desc="make_training_set", unit="image") as bar:

@@ -24,7 +24,7 @@ from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_artifact
-from tactile6d.render import DigitRenderer, add_noise, load_background, mesh_arrays
+from tactile6d.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
 from tactile6d.sensor import sensor_poses_touching
 
 
@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     noise_seeds = rng.integers(0, 2**62, size=n + 1)  # one per image, the last for the no-contact image
     poses = sensor_poses_touching(points, normals, rolls, depths)
 
-    background = load_background(cfg, DataStore(cfg.paths))
+    background = load_background_bgr(cfg, DataStore(cfg.paths))
     with DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False) as renderer:
         images = database.CompactImages(renderer.background)
         with tqdm(total=n, desc=f"render_database {name}", unit="image") as bar:

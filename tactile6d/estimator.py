@@ -497,9 +497,9 @@ def load_background(cfg: Mapping, data_dir: str | Path | None = None) -> np.ndar
 
     ``render.background`` is a path relative to the data directory: ``data_dir`` when given, else the
     one ``tactile6d.data.DataStore`` resolves from ``paths``. The PNG is read in RGB order like the
-    tactile images (``io.read_tactile_image``): the renderer takes the file in OpenCV's BGR order and
-    flips it to RGB itself, so its no-contact output is the file's RGB; the paper's images match it
-    there channel for channel.
+    tactile images (``io.read_tactile_image``): the renderer takes the file in OpenCV's BGR order
+    (``render.load_background_bgr``) and flips it to RGB itself, so its no-contact output is the file's
+    RGB; the paper's images match it there channel for channel.
     """
     from tactile6d.io import read_tactile_image
 

@@ -605,13 +605,14 @@ def add_noise(image: np.ndarray, noise_std: float, seed) -> np.ndarray:
     return cv2.add(image, noise.reshape(image.shape), dtype=cv2.CV_8U)
 
 
-def load_background(cfg: Mapping, store) -> np.ndarray:
+def load_background_bgr(cfg: Mapping, store) -> np.ndarray:
     """The no-contact background named by ``cfg.render.background`` -> (H, W, 3) uint8 in OpenCV's BGR order.
 
     cfg: the whole config (its ``render`` section is read); store: a ``tactile6d.data.DataStore``, which
     checks the file against the data manifest (or downloads it). BGR is what ``DigitRenderer`` takes,
-    as TACTO does; ``DigitRenderer.background`` holds the RGB float version it adds imprints to.
-    Raises DataError when the file is not a readable image.
+    as TACTO does; ``DigitRenderer.background`` holds the RGB float version it adds imprints to. The
+    suffix is there because ``tactile6d.estimator.load_background`` reads the same file in RGB, the
+    order of the tactile images the estimator takes. Raises DataError when the file is not a readable image.
     """
     path = store.path(str(cfg["render"]["background"]))
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)

@@ -74,11 +74,11 @@ def test_three_paper_images_are_reproduced():
     from tactile6d.data import DataStore
     from tactile6d.geometry import text_to_poses
     from tactile6d.io import read_tactile_image
-    from tactile6d.render import DigitRenderer, load_background
+    from tactile6d.render import DigitRenderer, load_background_bgr
 
     cfg = compose_config([f"paths.data_dir={_data_dir()}"])
     store = DataStore(cfg.paths)
-    renderer = DigitRenderer.from_config(cfg.render, load_background(cfg, store), workers=1)
+    renderer = DigitRenderer.from_config(cfg.render, load_background_bgr(cfg, store), workers=1)
     folder = _data_dir() / "caddeo2023" / "triplets" / "011_banana" / "triplet_1"
     mesh = command.load_object(store, "011_banana")
     poses = text_to_poses((folder / "poses_sensors.txt").read_text())

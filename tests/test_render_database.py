@@ -12,7 +12,7 @@ from tactile6d.config import compose_config
 from tactile6d.data import DataStore
 from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.io import read_artifact
-from tactile6d.render import DigitRenderer, load_background
+from tactile6d.render import DigitRenderer, load_background_bgr
 
 M = 20
 H, W = sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH
@@ -67,7 +67,7 @@ def test_sensors_touch_their_points(built):
 def test_rebuilt_images_equal_direct_renders(built):
     cfg, obj, _, db = built
     mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
-    background = load_background(cfg, DataStore(cfg.paths))
+    background = load_background_bgr(cfg, DataStore(cfg.paths))
     renderer = DigitRenderer.from_config(cfg.render, background, workers=1, strict=False)
     picks = [0, 7, M - 1]
     stored = database.database_images(db, picks)

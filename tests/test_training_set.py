@@ -10,7 +10,7 @@ from tactile6d.config import compose_config
 from tactile6d.data import DataStore
 from tactile6d.errors import ArtifactError, ConfigError
 from tactile6d.io import read_artifact
-from tactile6d.render import DigitRenderer, load_background
+from tactile6d.render import DigitRenderer, load_background_bgr
 
 N, SHAPES = 12, 3
 
@@ -59,7 +59,7 @@ def test_sensors_touch_the_superquadric(built):
 
 def test_rebuilt_image_equals_a_direct_render(built):
     cfg, ts = built
-    renderer = DigitRenderer.from_config(cfg.render, load_background(cfg, DataStore(cfg.paths)), workers=1, strict=False)
+    renderer = DigitRenderer.from_config(cfg.render, load_background_bgr(cfg, DataStore(cfg.paths)), workers=1, strict=False)
     i = 5
     shape = sq.Superquadric(*ts["axes"][i], *ts["exponents"][i])
     mesh = sq.superquadric_mesh(shape, cfg.training_set.mesh_max_edge, cfg.training_set.mesh_max_turn)

@@ -30,7 +30,7 @@ from tactile6d.config import compose_config, section_to_dict
 from tactile6d.data import DataStore
 from tactile6d.database import sensor_rolls
 from tactile6d.geometry import invert_pose
-from tactile6d.render import DigitRenderer, load_background, mesh_arrays
+from tactile6d.render import DigitRenderer, load_background_bgr, mesh_arrays
 
 
 def database_poses(mesh: trimesh.Trimesh, n: int, press_depth: float, roll: str, seed: int) -> np.ndarray:
@@ -57,7 +57,7 @@ def main(argv: list[str]) -> int:
     poses = database_poses(mesh, args.n, config["press_depth"], config["roll"], args.seed)
     # Database sampling puts some sensors across sharp edges, where the body meets the object; the
     # database renders those as TACTO does, so the benchmark does too.
-    with DigitRenderer.from_config(config, load_background(cfg, store), strict=False) as renderer:
+    with DigitRenderer.from_config(config, load_background_bgr(cfg, store), strict=False) as renderer:
         renderer.render_many(arrays, poses, seeds=args.seed)  # warm-up: workers start, imports, caches
 
         with tqdm(total=args.n, desc="bench render", unit="image") as bar:

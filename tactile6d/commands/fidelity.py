@@ -28,7 +28,7 @@ from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import DataError
 from tactile6d.geometry import make_pose
 from tactile6d.io import read_scene_dir
-from tactile6d.render import DigitRenderer, MeshArrays, load_background, mesh_arrays
+from tactile6d.render import DigitRenderer, MeshArrays, load_background_bgr, mesh_arrays
 
 GROUND_TRUTH = make_pose(np.eye(3), [0.1, 0.0, 0.2])  # the paper's T_world_object for every triplet
 
@@ -62,7 +62,7 @@ def main(argv: list[str]) -> int:
 
     cfg = compose_config(args.overrides)
     store = DataStore(cfg.paths)
-    renderer = DigitRenderer.from_config(cfg.render, load_background(cfg, store), workers=1)
+    renderer = DigitRenderer.from_config(cfg.render, load_background_bgr(cfg, store), workers=1)
     background_rgb = renderer.background  # what the renderer adds the imprint to (RGB)
     scenes = [(obj, folder, *read_scene_dir(folder)) for obj, folder in triplet_folders(store)]
     sensors = [(obj, folder, i, poses[i], images[i]) for obj, folder, poses, images in scenes for i in range(len(poses))]
