@@ -78,8 +78,7 @@ def test_surface_points_invert_the_placement():
     np.testing.assert_allclose(make_training_set.surface_points(T, depths), points, atol=1e-12)
 
 
-def test_bad_count_and_corrupt_artifact(built, tmp_path):
-    _cfg, _ts = built
+def test_bad_count_and_corrupt_artifact(tmp_path):
     with pytest.raises(ConfigError):
         make_training_set.main([f"paths.artifacts_dir={tmp_path}", "training_set.n_images=0"])
     broken = tmp_path / "training_set.h5"
