@@ -98,6 +98,20 @@ def test_kinds_and_biased_sampling(meshes):
         sq.sample_surface_contacts(SHAPES[2], meshes[2], 10, rng, 0.7, 0.5, 0.008)
 
 
+def test_shapes_narrower_than_the_gel_give_tips_and_rods():
+    # The default training set draws semi-axes down to 5 mm so that, like the marker's tip and body,
+    # some shapes bend tighter than sharp_radius everywhere (a corner) or across one direction (an edge).
+    sharp_radius = 0.008
+    tip = sq.superquadric_mesh(sq.Superquadric(0.005, 0.005, 0.005, 1.0, 1.0), EDGE / 4, TURN)
+    assert np.all(sq.vertex_kinds(tip, sharp_radius) == sq.CORNER)
+    rod = sq.superquadric_mesh(sq.Superquadric(0.005, 0.005, 0.04, 0.1, 1.0), EDGE / 4, TURN)
+    kinds = sq.vertex_kinds(rod, sharp_radius)
+    side = np.abs(np.asarray(rod.vertices)[:, 2]) < 0.03  # the cylinder's mantle, away from its end rims
+    assert np.mean(kinds[side] == sq.EDGE) > 0.95
+    big = sq.superquadric_mesh(sq.Superquadric(0.015, 0.015, 0.015, 1.0, 1.0), EDGE, TURN)
+    assert np.all(sq.vertex_kinds(big, sharp_radius) == sq.SURFACE)  # the old 15 mm floor: no tips
+
+
 def test_sampled_contacts_lie_on_the_surface_with_outward_normals(meshes):
     rng = np.random.default_rng(2)
     for s, mesh in zip(SHAPES, meshes):
