@@ -40,12 +40,15 @@ edge than a flat patch; curved contacts are not ranked. The no-contact latent is
 batch. The model still never sees an object image; the AUROCs below measure how far an ordering learnt
 on superquadrics carries over to the YCB objects under the same labelling rule.
 
-Measured (default training set, seed 0 unless stated; stage ae_quality's figures and throw-away runs of
-the same code): latent-angle AUROC flat/edge, edge/corner, and edge/corner within an object, on the YCB
-databases, and the median triplet angle gap (rad):
+Measured (seed 0 unless stated; stage ae_quality's figures and throw-away runs of the same code):
+latent-angle AUROC flat/edge, edge/corner, and edge/corner within an object, on the YCB databases, and
+the median triplet angle gap (rad). With the default training set (semi-axes 5-80 mm, 60 shapes) and
+the default ranking: 0.9996 / 0.807 / 0.840, gap 0.058; seed 1: 0.9996 / 0.794 / 0.829, gap 0.074.
+The figures below were measured on the training set of 2026-11-21 (semi-axes 15-80 mm, 30 shapes; the
+README compares the two):
 - reconstruction only (the paper's loss): 0.951 / 0.620 / 0.715, gap 0.111;
-- ranking, weight 3, margin 0.2 (the default): 0.999 / 0.790 / 0.835, gap 0.054; seed 1: 0.999 / 0.753 /
-  0.790, gap 0.078;
+- ranking, weight 3, margin 0.2 (the default ranking): 0.999 / 0.790 / 0.835, gap 0.054; seed 1: 0.999 /
+  0.753 / 0.790, gap 0.078;
 - weight 3, margin 0.3: 0.9995 / 0.799 / 0.837, gap 0.086; weight 10, margin 0.3: 0.999 / 0.778 / 0.808,
   gap 0.072; weight 1, margin 0.1: 0.997 / 0.731 / 0.770, gap 0.066;
 - weight 1, margin 0.1, ranked by the generator's own kinds (surface / edge / corner of the nearest mesh
@@ -53,12 +56,13 @@ databases, and the median triplet angle gap (rad):
 - no ranking, peak floor 20 alone: 0.976 / 0.623 / 0.726; floor 20 and offset 0.5: 0.954 / 0.655 / 0.789
   (seed 1: 0.976 / 0.674 / 0.785); floor 20 and an offset of 10 added after the RMS scaling (a first
   form of the switch, not kept): 0.992 / 0.637 / 0.767; 30 diverged.
-Pose estimates on the validation scenes (default method, L = 1 / 2 / 3 sensors): with the ranking
-(weight 3, margin 0.2) position 5.56 / 2.31 / 0.99 cm and contact accuracy 61.7 / 43.3 / 45.0 %, against
-5.48 / 2.54 / 1.02 cm and 50.8 / 46.7 / 52.5 % with reconstruction only; with floor 20 and offset 0.5
-5.32 / 2.41 / 1.15 cm and 45.8 / 47.5 / 47.5 % (select.delta_h 0.16 or 0.20 instead of 0.12 did not
-change that), which is why the peak floor and offset stay off. Peak normalisation alone gave 40 % contact
-accuracy at L = 3, against 55 % without it in the defaults of the time (before normal_max_sensors).
+Pose estimates on the validation scenes (15-80 mm training set, default method, L = 1 / 2 / 3 sensors):
+with the ranking (weight 3, margin 0.2) position 5.56 / 2.31 / 0.99 cm and contact accuracy
+61.7 / 43.3 / 45.0 %, against 5.48 / 2.54 / 1.02 cm and 50.8 / 46.7 / 52.5 % with reconstruction only;
+with floor 20 and offset 0.5 5.32 / 2.41 / 1.15 cm and 45.8 / 47.5 / 47.5 % (select.delta_h 0.16 or
+0.20 instead of 0.12 did not change that), which is why the peak floor and offset stay off. Peak
+normalisation alone gave 40 % contact accuracy at L = 3, against 55 % without it in the defaults of the
+time (before normal_max_sensors).
 
 Arrays: images are uint8 ``(n, 320, 240, 3)`` (rows along the sensor's z axis, 240 columns along y; the
 colour order is whatever the caller uses, consistently); a background is ``(320, 240, 3)``. Model tensors
