@@ -42,9 +42,11 @@ def database_types(artifacts: str, name: str, points: np.ndarray, normals: np.nd
     return contact.classify_contacts(contact.sample_surface(mesh), points, normals)
 
 
-def triplet_gaps(artifacts: str, angles: dict, points: dict, model, norm, background) -> np.ndarray:
-    """|angle(triplet image) - angle(database point nearest the true contact)| per sensor of caddeo2023."""
-    scenes = read_artifact(layout.scenes_file(artifacts, "caddeo2023"), "scenes")
+def triplet_gaps(artifacts: str, angles: dict, points: dict, model, norm, background,
+                 scene_set: str = "caddeo2023") -> np.ndarray:
+    """|angle(sensor image) - angle(database point nearest the true contact)| per sensor of a scene set,
+    sensor by sensor, scene by scene (scenes of objects missing from ``angles`` are skipped)."""
+    scenes = read_artifact(layout.scenes_file(artifacts, scene_set), "scenes")
     gaps = []
     for s, obj in enumerate(scenes["objects"].tolist()):
         if obj not in angles:

@@ -1,0 +1,51 @@
+"""How far each sensor's latent angle lies from that of the database point at its true contact.
+
+    python scripts/angle_gaps.py --artifacts artifacts --scenes validation
+
+For every sensor of the scene set: the gap between its image's latent angle and the angle of the
+database point nearest its true contact (``stages.ae_quality.triplet_gaps``, which the ``ae_quality``
+stage runs on caddeo2023). Prints one JSON line: the median and 90th percentile of the gap (rad), and
+the share of sensors whose gap is under ``select.delta_h``, i.e. whose true contact point survives the
+tactile selection's first threshold. Reads the artifacts of the pipeline (checkpoint, latents,
+surfaces, scenes); writes nothing. Compare autoencoders by running it after each ``dvc exp run``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d and stages
+
+from stages.ae_quality import triplet_gaps
+from tactile6d import autoencoder, layout
+from tactile6d.config import compose_config
+from tactile6d.io import read_artifact
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--artifacts", default="artifacts")
+    parser.add_argument("--scenes", default="validation", help="scene set: validation or caddeo2023")
+    parser.add_argument("overrides", nargs="*", help="config overrides (objects, select.delta_h)")
+    args = parser.parse_args()
+    cfg = compose_config(args.overrides)
+    names = list(cfg.objects.names)
+    angles = {n: read_artifact(layout.latents_file(args.artifacts, n), "latents")["angles"] for n in names}
+    points = {n: read_artifact(layout.surface_file(args.artifacts, n), "surface")["points"] for n in names}
+    model, norm, _ = autoencoder.load_checkpoint(layout.ae_checkpoint(args.artifacts))
+    background = read_artifact(layout.database_file(args.artifacts, names[0]), "database")["background"]
+    gaps = triplet_gaps(args.artifacts, angles, points, model, norm, background, args.scenes)
+    delta_h = float(cfg.select.delta_h)
+    print(json.dumps({"scenes": args.scenes, "sensors": int(gaps.size), "gap_median": float(np.median(gaps)),
+                      "gap_p90": float(np.quantile(gaps, 0.9)), "delta_h": delta_h,
+                      "share_under_delta_h": float(np.mean(gaps < delta_h))}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
