@@ -36,18 +36,22 @@ def adi(
 ) -> np.ndarray:
     """ADI (ADD-S), metres: model_points (N, 3) object frame, T_est (..., 4, 4), T_gt (4, 4) -> (...).
 
-    Definition: ``mean_i min_j || T_est x_i - T_gt x_j ||`` over the model points x, i.e. the mean
-    distance from each model point at the estimated pose to the nearest model point at the true pose.
-    It is 0 for any pose that maps the point set onto itself, so symmetric objects are not penalised.
+    Definition: ``mean_i min_j || T_gt x_i - T_est x_j ||`` over the model points x, i.e. the mean
+    distance from each model point **at the true pose** to the nearest model point at the estimated
+    pose. This is Hinterstoisser et al.'s ADI (ACCV 2012), the BOP toolkit's ``adi`` and the paper's
+    own evaluation code (``optimization/bop_pose_error.py`` of hsp-iit/multi-tactile-6d-estimation).
+    The other direction (over the points at the estimate) is not the same number when the point set
+    is uneven; it differs by a few per cent, more on bad poses. It is 0 for any pose that maps the
+    point set onto itself, so symmetric objects are not penalised.
 
-    Computed in the object frame, ``min_j || T_gt^-1 T_est x_i - x_j ||`` (rigid motions keep
+    Computed in the object frame, ``min_j || T_est^-1 T_gt x_i - x_j ||`` (rigid motions keep
     distances), so one tree over the model points (``model_tree``; built here if not given) serves
     every estimate and every scene of the object.
     """
     points = np.asarray(model_points, dtype=np.float64)
     T_est = np.asarray(T_est, dtype=np.float64)
     tree = model_tree(points) if tree is None else tree
-    T_rel = (invert_pose(np.asarray(T_gt, dtype=np.float64)) @ T_est).reshape(-1, 4, 4)
+    T_rel = (invert_pose(T_est) @ np.asarray(T_gt, dtype=np.float64)).reshape(-1, 4, 4)
     out = np.empty(len(T_rel))
     chunk = max(1, _POINTS_PER_QUERY // max(1, len(points)))
     for start in range(0, len(T_rel), chunk):

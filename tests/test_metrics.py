@@ -29,6 +29,35 @@ def test_adi_by_hand():
     assert M.adi(pts, T_gt2 @ T_est, T_gt2) == pytest.approx(0.005)
 
 
+def test_adi_averages_over_the_points_at_the_true_pose():
+    # Three points on x at 0, 10 and 11 mm; the estimate is shifted 10 mm along x, to 10, 20, 21 mm.
+    # Over the true points (the reference direction): 0 -> 10 is 10 mm, 10 -> 10 is 0, 11 -> 10 is 1:
+    # 11/3 mm. Over the estimated points it would be 0, 9 and 10 mm: 19/3 mm.
+    pts = np.array([[0.0, 0, 0], [0.010, 0, 0], [0.011, 0, 0]])
+    T_est = _pose([0, 0, 0], [0.010, 0, 0])
+    assert M.adi(pts, T_est, np.eye(4)) == pytest.approx(0.011 / 3)
+    assert M.adi(pts, np.eye(4), T_est) == pytest.approx(0.019 / 3)
+
+
+def naive_adi(pts, T_est, T_gt):
+    """ADI by a double loop in the reference direction: for each point at the true pose, the nearest
+    point at the estimated pose."""
+    at_gt, at_est = g.transform_points(T_gt, pts), g.transform_points(T_est, pts)
+    return np.mean([min(np.linalg.norm(p - q) for q in at_est) for p in at_gt])
+
+
+def test_adi_matches_a_naive_double_loop_on_an_uneven_point_set():
+    rng = np.random.default_rng(5)
+    # a dense cluster and a sparse tail: the two directions of ADI disagree on such sets
+    pts = np.vstack([rng.normal(size=(40, 3)) * 0.002, rng.normal(size=(12, 3)) * 0.04])
+    T_gt = _pose(rng.normal(size=3), [0.1, 0, 0.2])
+    T_est = np.stack([_pose(rng.normal(size=3), [0.1, 0, 0.2] + rng.normal(size=3) * 0.01) for _ in range(4)])
+    expected = [naive_adi(pts, T, T_gt) for T in T_est]
+    np.testing.assert_allclose(M.adi(pts, T_est, T_gt), expected, rtol=1e-12)
+    reverse = [naive_adi(pts, T_gt, T) for T in T_est]
+    assert np.max(np.abs(np.subtract(expected, reverse))) > 1e-3
+
+
 def test_adi_is_zero_under_symmetries():
     rng = np.random.default_rng(1)
     # a cube's corners and face centres: a 90-degree turn about z maps the set onto itself
