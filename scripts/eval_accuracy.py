@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 from tactile6d import contact, evaluation, layout, scenes
 from tactile6d.config import compose_config
-from tactile6d.errors import InputError
+from tactile6d.errors import NoMatch
 from tactile6d.estimator import Estimator
 from tactile6d.io import read_artifact
 
@@ -88,7 +88,7 @@ def main() -> int:
                 result = estimators[obj].estimate(T, images)
             poses, n = result.poses, len(result.poses)
             steps.append(result.seconds)
-        except InputError:
+        except NoMatch:
             poses, n = np.zeros((0, 4, 4)), 0
             failed += 1
         seconds.append(time.perf_counter() - t0)

@@ -1,4 +1,4 @@
-"""Stage optimize: pose hypotheses for every scene's tuples (DESIGN §1 step 6).
+"""Stage optimize: pose hypotheses for every scene's tuples (the paper's optimisation step).
 
 Reads ``artifacts/runs/<set>/<method>/tuples.h5``, each scene object's ``surfaces/<obj>.h5``, and config
 section ``optimize``. Writes ``hypotheses.h5`` beside it: per scene the hypotheses stacked with offsets,
@@ -14,55 +14,64 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import estimator as est
 from tactile6d import layout
 from tactile6d.config import section_to_dict
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_artifact
+from tactile6d.object_artifacts import load_surface_normals, load_surface_points
 from tactile6d.optimize import use_cpu_devices
+from tactile6d.run_artifacts import (
+    carried,
+    compact_hypotheses,
+    median_or_nan,
+    parse_run_stage_args,
+    scene_rows,
+    stack_ragged,
+)
+from tactile6d.settings import OptimizeSettings
+from tactile6d.steps.optimize import optimize
 
 
 def main(argv: list[str] | None = None) -> int:
-    args, cfg = est.parse_run_stage_args(argv, __doc__.splitlines()[0])
-    settings = est.OptimizeSettings.from_cfg(cfg.optimize)
+    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
+    settings = OptimizeSettings.from_cfg(cfg.optimize)
     if settings.solver == "gd":
         use_cpu_devices(settings.cpu_devices)  # before JAX runs anything in this process
     artifacts = cfg.paths.artifacts_dir
     run = layout.run_dir(artifacts, args.scene_set, args.method)
     selected = read_artifact(run / "tuples.h5", "tuples")
     names, objects = selected["names"], selected["objects"]
-    points_of = {name: est.load_surface_points(artifacts, name) for name in sorted(set(objects))}
-    normals_of = {name: est.load_surface_normals(artifacts, name) if settings.normal_weight > 0 else None
+    points_of = {name: load_surface_points(artifacts, name) for name in sorted(set(objects))}
+    normals_of = {name: load_surface_normals(artifacts, name) if settings.normal_weight > 0 else None
                   for name in sorted(set(objects))}
 
     poses, losses, tuple_index = [], [], []
     seconds = np.zeros(len(names))
     for s in tqdm(range(len(names)), desc=f"optimize {args.scene_set}/{args.method}", unit="scene"):
-        tuples = est.scene_rows(selected["tuples"], selected["offsets"], s).astype(np.int64)
+        tuples = scene_rows(selected["tuples"], selected["offsets"], s).astype(np.int64)
         if tuples.shape[0] == 0:  # a scene whose selection failed
             poses.append(np.zeros((0, 4, 4)))
             losses.append(np.zeros(0))
             tuple_index.append(np.zeros(0))
             continue
         t0 = time.perf_counter()
-        hypotheses = est.optimize(points_of[objects[s]], selected["T_world_sensors"][s], tuples, settings,
-                                  normals_of[objects[s]])
+        hypotheses = optimize(points_of[objects[s]], selected["T_world_sensors"][s], tuples, settings,
+                              normals_of[objects[s]])
         seconds[s] = time.perf_counter() - t0
         poses.append(hypotheses.poses)
         losses.append(hypotheses.losses)
         tuple_index.append(hypotheses.tuple_index)
 
-    all_poses, offsets = est.stack_ragged(poses, (4, 4), np.float64)
+    all_poses, offsets = stack_ragged(poses, (4, 4), np.float64)
     print(f"{args.scene_set}/{args.method}: {offsets[-1]} hypotheses over {len(names)} scenes "
-          f"({settings.solver}), median {est.median_or_nan(seconds):.3f} s per scene")
+          f"({settings.solver}), median {median_or_nan(seconds):.3f} s per scene")
     write_artifact(
         run / "hypotheses.h5",
         "hypotheses",
         {
-            **est.carried(selected, ("names", "objects", "T_world_sensors", "failure", "seconds_encode",
-                                       "seconds_select")),
-            **est.compact_hypotheses(all_poses, est.stack_ragged(losses, (), np.float64)[0]),
-            "tuple_index": est.stack_ragged(tuple_index, (), np.int32)[0],
+            **carried(selected, ("names", "objects", "T_world_sensors", "failure", "seconds_encode", "seconds_select")),
+            **compact_hypotheses(all_poses, stack_ragged(losses, (), np.float64)[0]),
+            "tuple_index": stack_ragged(tuple_index, (), np.int32)[0],
             "offsets": offsets,
             "seconds_optimize": seconds,
         },

@@ -1,4 +1,4 @@
-"""Stage rank: the top-k distinct poses of every scene by loss + deepest sensor penetration (DESIGN §1 step 7).
+"""Stage rank: the top-k distinct poses of every scene by loss + deepest sensor penetration (the paper's collision-aware ranking).
 
 Reads ``artifacts/runs/<set>/<method>/hypotheses.h5``, each scene object's ``objects/<obj>.h5`` (collision
 pieces), and config section ``rank``. Writes ``ranked.h5`` beside it: per scene the top-k poses (S, K, 4, 4)
@@ -14,23 +14,30 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import estimator as est
 from tactile6d import layout
 from tactile6d.collision import PenetrationModel
 from tactile6d.config import section_to_dict
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_artifact
+from tactile6d.run_artifacts import (
+    carried,
+    expand_hypotheses,
+    median_or_nan,
+    parse_run_stage_args,
+)
+from tactile6d.settings import RankSettings
+from tactile6d.steps.rank import load_pieces, load_refine_surface, rank
 
 
 def main(argv: list[str] | None = None) -> int:
-    args, cfg = est.parse_run_stage_args(argv, __doc__.splitlines()[0])
-    settings = est.RankSettings.from_cfg(cfg.rank)
+    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
+    settings = RankSettings.from_cfg(cfg.rank)
     artifacts = cfg.paths.artifacts_dir
     run = layout.run_dir(artifacts, args.scene_set, args.method)
     hyp = read_artifact(run / "hypotheses.h5", "hypotheses")
     names, objects, T_world_sensors = hyp["names"], hyp["objects"], hyp["T_world_sensors"]
-    models = {name: PenetrationModel(est.load_pieces(artifacts, name)) for name in sorted(set(objects))}
-    surfaces = {name: est.load_refine_surface(artifacts, name) if settings.refine else None
+    models = {name: PenetrationModel(load_pieces(artifacts, name)) for name in sorted(set(objects))}
+    surfaces = {name: load_refine_surface(artifacts, name) if settings.refine else None
                 for name in sorted(set(objects))}
 
     n_scenes, n_sensors, k = len(names), T_world_sensors.shape[1], int(settings.top_k)
@@ -43,23 +50,22 @@ def main(argv: list[str] | None = None) -> int:
         rows = slice(hyp["offsets"][s], hyp["offsets"][s + 1])
         if rows.start == rows.stop:  # a scene whose selection failed
             continue
-        candidates, losses_in = est.expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows],
-                                                      hyp["losses"][rows])
+        candidates, losses_in = expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows], hyp["losses"][rows])
         t0 = time.perf_counter()
-        ranked = est.rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings, surfaces[objects[s]])
+        ranked = rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings, surfaces[objects[s]])
         seconds[s] = time.perf_counter() - t0
         n = n_poses[s] = len(ranked.poses)
         poses[s, :n], scores[s, :n], losses[s, :n], penetrations[s, :n] = (
             ranked.poses, ranked.scores, ranked.losses, ranked.penetrations)
 
     print(f"{args.scene_set}/{args.method}: {int((n_poses > 0).sum())} of {n_scenes} scenes ranked, "
-          f"median {est.median_or_nan(seconds):.3f} s per scene")
+          f"median {median_or_nan(seconds):.3f} s per scene")
     write_artifact(
         run / "ranked.h5",
         "ranked",
         {
-            **est.carried(hyp, ("names", "objects", "T_world_sensors", "failure", "seconds_encode",
-                                  "seconds_select", "seconds_optimize")),
+            **carried(hyp, ("names", "objects", "T_world_sensors", "failure", "seconds_encode", "seconds_select",
+                             "seconds_optimize")),
             "poses": poses, "scores": scores, "losses": losses, "penetrations": penetrations,
             "n_poses": n_poses, "seconds_rank": seconds,
         },

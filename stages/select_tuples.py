@@ -1,4 +1,4 @@
-"""Stage select_tuples: candidate tuples of database points for every scene of a scene set (DESIGN §1 steps 4, 5, 8).
+"""Stage select_tuples: candidate tuples of database points for every scene of a scene set (tactile and distance selection; the baseline skips the tactile part).
 
 Reads ``artifacts/scenes/<set>.h5``, each scene object's ``surfaces/<obj>.h5`` and, for method ``ours``,
 its ``latents/<obj>.h5``, the autoencoder checkpoint and the no-contact background (``render.background``);
@@ -16,13 +16,22 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import estimator as est
 from tactile6d import layout
 from tactile6d.autoencoder import load_checkpoint
 from tactile6d.config import section_to_dict
-from tactile6d.errors import InputError, exit_on_error
+from tactile6d.errors import NoMatch, exit_on_error
+from tactile6d.inputs import check_images, check_sensor_poses
 from tactile6d.io import read_artifact, write_artifact
+from tactile6d.object_artifacts import load_surface_normals, load_surface_points
+from tactile6d.run_artifacts import median_or_nan, parse_run_stage_args, stack_ragged
 from tactile6d.scenes import scene_set_from_artifact
+from tactile6d.settings import SelectSettings
+from tactile6d.steps.encode import (
+    LatentAngleEncoder,
+    load_background,
+    load_database_angles,
+)
+from tactile6d.steps.select import select
 
 
 class Database:
@@ -34,17 +43,17 @@ class Database:
         self.normals = normals
         if ours:
             self.model, self.norm, _ = load_checkpoint(layout.ae_checkpoint(self.artifacts))
-            self.background = est.load_background(cfg)
+            self.background = load_background(cfg)
         self._cache = {}
 
     def __getitem__(self, name: str):
         """-> (points (M, 3), database angles (M,) or None, encoder or None, normals (M, 3) or None)."""
         if name not in self._cache:
-            points = est.load_surface_points(self.artifacts, name)
-            normals = est.load_surface_normals(self.artifacts, name) if self.normals else None
+            points = load_surface_points(self.artifacts, name)
+            normals = load_surface_normals(self.artifacts, name) if self.normals else None
             if self.ours:
-                angles, latent_nc = est.load_database_angles(self.artifacts, name)
-                encoder = est.LatentAngleEncoder(self.model, self.norm, self.background, latent_nc)
+                angles, latent_nc = load_database_angles(self.artifacts, name)
+                encoder = LatentAngleEncoder(self.model, self.norm, self.background, latent_nc)
                 self._cache[name] = (points, angles, encoder, normals)
             else:
                 self._cache[name] = (points, None, None, normals)
@@ -52,8 +61,8 @@ class Database:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args, cfg = est.parse_run_stage_args(argv, __doc__.splitlines()[0])
-    settings = est.SelectSettings.from_cfg(cfg.select)
+    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
+    settings = SelectSettings.from_cfg(cfg.select)
     artifacts = cfg.paths.artifacts_dir
     scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes"))
     n_scenes, n_sensors = scenes.T_world_sensors.shape[:2]
@@ -70,16 +79,16 @@ def main(argv: list[str] | None = None) -> int:
     failure = [""] * n_scenes
     for s in tqdm(range(n_scenes), desc=f"select_tuples {args.scene_set}/{args.method}", unit="scene"):
         points, db_angles, encoder, normals = database[str(scenes.objects[s])]
-        T = est.check_sensor_poses(scenes.T_world_sensors[s])
+        T = check_sensor_poses(scenes.T_world_sensors[s])
         t0 = time.perf_counter()
         if encoder is not None:
-            angles[s] = encoder(est.check_images(scenes.images[s], n_sensors))
+            angles[s] = encoder(check_images(scenes.images[s], n_sensors))
         t1 = time.perf_counter()
         seconds[s, 0] = t1 - t0
         try:
-            chosen = est.select(points, db_angles, T, angles[s], settings, normals)
-        except InputError as exc:
-            # A scene that matches nothing is a failed estimate, not a failed pipeline.
+            chosen = select(points, db_angles, T, angles[s], settings, normals)
+        except NoMatch as exc:
+            # A scene that matches nothing is a failed estimate, not a failed pipeline; bad input stops it.
             failure[s] = str(exc)
             tuples.append(np.zeros((0, n_sensors)))
             errors.append(np.zeros(0))
@@ -90,10 +99,10 @@ def main(argv: list[str] | None = None) -> int:
         omega_sizes[s], delta_h[s], widened[s] = chosen.omega_sizes, chosen.delta_h, chosen.widened
         delta_d[s], capped[s] = chosen.delta_d, chosen.capped
 
-    stacked, offsets = est.stack_ragged(tuples, (n_sensors,), np.int32)
-    stacked_errors, _ = est.stack_ragged(errors, (), np.float32)
+    stacked, offsets = stack_ragged(tuples, (n_sensors,), np.int32)
+    stacked_errors, _ = stack_ragged(errors, (), np.float32)
     n_failed = sum(bool(f) for f in failure)
-    print(f"{args.scene_set}/{args.method}: {n_scenes} scenes, median {est.median_or_nan(np.diff(offsets)):.0f} "
+    print(f"{args.scene_set}/{args.method}: {n_scenes} scenes, median {median_or_nan(np.diff(offsets)):.0f} "
           f"tuples, {int(widened.any(axis=1).sum())} with a widened delta_h, {n_failed} failed")
     write_artifact(
         layout.run_dir(artifacts, args.scene_set, args.method) / "tuples.h5",

@@ -30,6 +30,16 @@ class InputError(Tactile6dError):
     """Bad input to the estimator or the CLI (poses, images, scene folders)."""
 
 
+class NoMatch(Tactile6dError):
+    """Valid input that nothing in the object's database matches: no database image close enough to a
+    sensor's image, or no tuple of database points at the sensors' pairwise distances.
+
+    An outcome, not a mistake of the caller: an evaluation counts it as a failed estimate, whereas an
+    ``InputError`` there means the data itself is wrong and must stop the run. A wrong object name or a
+    sensor pose far from the object typically ends here.
+    """
+
+
 def exit_on_error(main: Callable[[], int | None]) -> int:
     """Run ``main``; turn a Tactile6dError into ``error: <message>`` on stderr and exit status 2."""
     try:

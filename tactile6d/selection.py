@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from tactile6d.errors import InputError
+from tactile6d.errors import InputError, NoMatch
 
 # How many candidate extensions one vectorised step of the join handles (memory: ~50 bytes each).
 _JOIN_CHUNK = 1 << 21
@@ -144,7 +144,7 @@ def angles_to_omegas(
     a_db (M,) latent angles of the database images, a_obs (L,) those of the sensors' images (rad).
     Omega_i = {j : |a_db[j] - a_obs[i]| < delta_h}. A sensor whose Omega_i is empty gets its own
     threshold widened by ``widen_step`` until it is not (a warning says so), at most to ``widen_max``;
-    beyond that an InputError is raised, since the image then matches nothing in the database.
+    beyond that NoMatch is raised, since the image then matches nothing in the database.
     """
     a_db = np.asarray(a_db, dtype=np.float64)
     a_obs = np.atleast_1d(np.asarray(a_obs, dtype=np.float64))
@@ -162,7 +162,7 @@ def angles_to_omegas(
             n_steps += 1
             threshold = delta_h + n_steps * widen_step
         if threshold > widen_max + 1e-12:
-            raise InputError(
+            raise NoMatch(
                 f"sensor {i}: no database image within delta_h={widen_max:g} rad of its latent angle "
                 f"(nearest is {gap.min():.4g} rad away); is it the right object?"
             )
@@ -412,7 +412,7 @@ def _best_n(join, n_max: int, delta_first: float, delta_max: float) -> DistanceS
             break
         if delta >= delta_max:
             if tuples.shape[0] == 0:
-                raise InputError(
+                raise NoMatch(
                     "no tuple of database points matches the sensors' pairwise distances within "
                     f"delta_d={delta_max:g} m"
                 )
@@ -457,7 +457,7 @@ def select_tuples(
     n_max tuples of lowest error below delta_max; delta_d is then the largest kept error); normals:
     the optional normal-consistency test (``NormalCheck``; a test of pairs, so unused for L = 1).
 
-    Raises InputError when no tuple passes even at ``delta_max`` (sensors farther apart, or closer,
+    Raises NoMatch when no tuple passes even at ``delta_max`` (sensors farther apart, or closer,
     than any pair of database points allows).
     """
     points, s, omegas = _check_inputs(points, sensor_points, omegas)
@@ -501,7 +501,7 @@ def select_tuples(
         while True:
             delta_up = round(delta + m * step_up, 12)
             if delta_up > delta_max:
-                raise InputError(
+                raise NoMatch(
                     "no tuple of database points matches the sensors' pairwise distances within "
                     f"delta_d={delta_max:g} m"
                 )

@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tactile6d import evaluation
-from tactile6d.errors import InputError
+from tactile6d.errors import NoMatch
 from tactile6d.estimator import Estimator
 
 ERROR_KEYS = ("position", "adi", "adi_rotation", "contact_ok")
@@ -43,7 +43,8 @@ def evaluate_sensor_count(
     (S, L, 4, 4), ``images`` (S, L, 320, 240, 3)); estimators and references keyed by object name.
     Returns the average row of ``evaluation.summarise_by_object`` (the metric keys of
     ``evaluation.SUMMARY_KEYS``; an empty dict for an empty set) and the wall-clock seconds of each
-    estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate with no matching tuple (InputError) counts as a failure, as in evaluate.
+    estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate
+    that matches nothing (``NoMatch``) counts as a failure, as in evaluate; bad input raises.
     """
     n_scenes = len(scenes["objects"])
     if n_scenes == 0:
@@ -61,7 +62,7 @@ def evaluate_sensor_count(
                 est = estimators[obj].estimate(T_sensors, scenes["images"][s][idx])
                 poses, n = est.poses, len(est.poses)
                 seconds.append(float(est.seconds["total"]))
-            except InputError:  # no tuple matched: a failed estimate
+            except NoMatch:  # nothing matched: a failed estimate
                 poses, n = np.zeros((0, 4, 4)), 0
             errors = evaluation.scene_errors(poses, n, scenes["T_world_object"][s], T_sensors, ref.points,
                                              ref.surface, tree=ref.tree)

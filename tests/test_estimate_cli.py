@@ -11,12 +11,14 @@ from tactile6d import cli, layout
 from tactile6d import estimator as est
 from tactile6d import geometry as g
 from tactile6d.config import compose_config
+from tactile6d.errors import exit_on_error
 from tactile6d.io import (
     read_artifact,
     read_scene_dir,
     write_artifact,
     write_tactile_image,
 )
+from tactile6d.run_artifacts import scene_rows
 from tactile6d.scenes import SceneSet
 from tactile6d.sensor import sensor_poses_touching
 
@@ -162,7 +164,7 @@ def test_stages_agree_with_the_online_estimator(request, artifacts, scene, metho
     online = est.Estimator.from_artifacts("prim_box", artifacts, cfg)
     for s in range(2):
         result = online.estimate(scenes.T_world_sensors[s], scenes.images[s])
-        np.testing.assert_array_equal(est.scene_rows(tuples["tuples"], tuples["offsets"], s), result.selection.tuples)
+        np.testing.assert_array_equal(scene_rows(tuples["tuples"], tuples["offsets"], s), result.selection.tuples)
         n = ranked["n_poses"][s]
         np.testing.assert_array_equal(ranked["poses"][s, :n], result.poses)
         np.testing.assert_array_equal(ranked["scores"][s, :n], result.scores)
@@ -186,6 +188,16 @@ def test_a_scene_that_matches_nothing_is_recorded_as_failed(artifacts, scene):
     assert ranked["failure"][0] == "" and "no tuple of database points matches" in ranked["failure"][1]
     assert ranked["n_poses"].tolist()[1] == 0 and np.isnan(ranked["poses"][1]).all()
     assert ranked["n_poses"][0] >= 1
+
+
+def test_a_scene_with_bad_input_stops_the_stage_instead_of_counting_as_failed(capsys, artifacts, scene):
+    scenes = write_scene_set(artifacts, scene, name="bad")
+    scenes.T_world_sensors[1, 0, :3, :3] *= 2.0  # not a rotation: the data is wrong, not the estimate
+    write_artifact(layout.scenes_file(artifacts, "bad"), "scenes", scenes.as_datasets())
+    argv = ["--scene-set", "bad", "--method", "baseline", f"paths.artifacts_dir={artifacts}", "select.N=400"]
+    assert exit_on_error(lambda: select_tuples.main(argv)) == 2
+    assert "sensor pose 0: the upper-left 3x3 block is not a rotation matrix" in capsys.readouterr().err
+    assert not (layout.run_dir(artifacts, "bad", "baseline") / "tuples.h5").exists()
 
 
 def test_an_empty_scene_set_goes_through(artifacts):

@@ -15,6 +15,8 @@ from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.io import write_artifact
 from tactile6d.meshes import pack_pieces
 from tactile6d.sensor import sensor_poses_touching
+from tactile6d.settings import Settings
+from tactile6d.steps.encode import load_background
 from tactile6d.surface import sample_surface_even
 
 HALF = np.array([0.05, 0.03, 0.08])  # a 10 x 6 x 16 cm box ...
@@ -54,7 +56,7 @@ def world():
 
 def settings(**overrides):
     """conf/'s select/optimize/rank sections with ``section.key=value`` overrides."""
-    return est.Settings.from_cfg(compose_config([f"{k}={v}" for k, v in overrides.items()]))
+    return Settings.from_cfg(compose_config([f"{k}={v}" for k, v in overrides.items()]))
 
 
 def make_estimator(world, angles=None, **overrides):
@@ -246,7 +248,7 @@ def test_ours_from_artifacts_encodes_images_with_the_checkpoint(tmp_path, world,
     write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"], world["normals"])
     write_tiny_autoencoder(tmp_path, 800, "prim_x")
     e = est.Estimator.from_artifacts("prim_x", tmp_path, compose_config(["select.N=200"]), data_dir=data_dir)
-    background = est.load_background(compose_config(), data_dir)
+    background = load_background(compose_config(), data_dir)
     assert background.shape == (320, 240, 3) and background.dtype == np.uint8
     # The no-contact image is the model's all-zero input: its angle is the same for every sensor.
     images = np.stack([background] * 3)

@@ -5,7 +5,7 @@ import pytest
 
 from tactile6d import geometry as g
 from tactile6d import selection as sel
-from tactile6d.errors import InputError
+from tactile6d.errors import InputError, NoMatch
 
 SELECT = {"delta_start": 5e-3, "step_down": 5e-4, "step_up": 1e-4, "delta_max": 5e-2}
 
@@ -145,12 +145,14 @@ def test_single_sensor_keeps_every_point_then_caps_at_random():
     assert np.all(np.diff(capped.tuples[:, 0]) > 0) and np.isin(capped.tuples, np.arange(10, 40)).all()
 
 
-def test_impossible_distances_raise_input_error():
+def test_impossible_distances_are_no_match_not_bad_input():
     rng = np.random.default_rng(0)
     points = _box_surface_points(30, rng)
     s = np.array([[0.0, 0, 0], [5.0, 0, 0]])  # 5 m apart: no pair of points on a 16 cm box
-    with pytest.raises(InputError, match="no tuple"):
-        sel.select_tuples(points, s, [np.arange(30)] * 2, 10, rng=rng, **SELECT)
+    for rule in ("paper", "best_n"):
+        with pytest.raises(NoMatch, match="no tuple") as info:
+            sel.select_tuples(points, s, [np.arange(30)] * 2, 10, rng=rng, **{**SELECT, "rule": rule})
+        assert not isinstance(info.value, InputError)
 
 
 def test_angles_to_omegas_thresholds_each_sensor():
@@ -171,7 +173,7 @@ def test_empty_omega_widens_delta_h_with_a_warning():
     np.testing.assert_array_equal(result.omegas[1], [1, 2])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        with pytest.raises(InputError, match="sensor 1"):
+        with pytest.raises(NoMatch, match="sensor 1"):
             sel.angles_to_omegas(a_db, np.array([0.1, 0.3]), 0.05, 0.02, 0.1)
 
 

@@ -26,8 +26,9 @@ import numpy as np
 from tactile6d.config import compose_config
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import ArtifactError, InputError
-from tactile6d.estimator import STEPS, Estimator, Settings
+from tactile6d.estimator import STEPS, Estimator
 from tactile6d.io import read_scene_dir
+from tactile6d.settings import Settings
 
 
 def paper_triplets(store: DataStore, objects: list[str]) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
