@@ -1,7 +1,8 @@
 """Stage evaluate: the metrics of DESIGN §6 for both methods on one scene set (the paper's Table I).
 
 Reads ``artifacts/scenes/<set>.h5``, ``artifacts/runs/<set>/{ours,baseline}/ranked.h5`` and the objects'
-meshes and metric points. Writes ``artifacts/metrics/<set>.json`` (DVC metrics: method -> metric,
+meshes and metric points, and the ``evaluate`` config section (the image-consistent contact metric's
+ray-grid step and IoU threshold). Writes ``artifacts/metrics/<set>.json`` (DVC metrics: method -> metric,
 averages over objects), ``artifacts/eval/<set>.json`` (per object and per scene) and
 ``artifacts/eval/<set>_table.md`` (Table I layout).
 """
@@ -9,33 +10,55 @@ averages over objects), ``artifacts/eval/<set>.json`` (per object and per scene)
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import evaluation, layout
+from tactile6d import evaluation, gel_contact, layout
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_json, write_text
+from tactile6d.render import mesh_arrays
 
 METHODS = ("ours", "baseline")
 STEPS = ("encode", "select", "optimize", "rank")
 
 
-def method_errors(ranked, scenes, objects_data, k: int) -> dict[str, np.ndarray]:
-    """Per-scene (S, k) error arrays of one method's ranked poses."""
+def method_errors(ranked, scenes, objects_data, meshes, k: int, image_step: int = gel_contact.DEFAULT_STEP,
+                  image_iou_min: float = gel_contact.IOU_MIN) -> dict[str, np.ndarray]:
+    """Per-scene (S, k) error arrays of one method's ranked poses: ``evaluation.scene_errors`` and
+    ``contact_image_ok`` (1.0 / 0.0, NaN where there is no estimate): ``gel_contact.image_consistency`` on
+    a ray grid of ``image_step`` pixels with the IoU threshold ``image_iou_min``. meshes: object name ->
+    ``render.MeshArrays``."""
     names = scenes["names"].tolist()
     if ranked["names"].tolist() != names:
         raise ValueError("ranked poses and scenes list different scenes: re-run the pipeline")
-    rows = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok")}
+    rows = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok", "contact_image_ok")}
     for s in tqdm(range(len(names)), desc="evaluate", unit="scene", leave=False):
-        ref = objects_data[str(scenes["objects"][s])]
-        e = evaluation.scene_errors(ranked["poses"][s], int(ranked["n_poses"][s]), scenes["T_world_object"][s],
+        obj = str(scenes["objects"][s])
+        ref = objects_data[obj]
+        n = min(int(ranked["n_poses"][s]), k)
+        e = evaluation.scene_errors(ranked["poses"][s], n, scenes["T_world_object"][s],
                                     scenes["T_world_sensors"][s], ref.points, ref.surface, tree=ref.tree, k=k)
+        image = gel_contact.image_consistency(meshes[obj], ranked["poses"][s][:n], scenes["T_world_object"][s],
+                                              scenes["T_world_sensors"][s], step=image_step, iou_min=image_iou_min)
+        e["contact_image_ok"] = evaluation.pad_to_k(image["consistent"], k)
         for key in rows:
             rows[key].append(e[key])
     return {key: np.array(value).reshape(len(names), k) for key, value in rows.items()}
+
+
+def scenes_with_untouched_sensors(scenes, meshes, image_step: int) -> list[str]:
+    """Names of the scenes in which the true pose leaves some sensor's gel unpressed on the ray grid."""
+    out = []
+    for s, name in enumerate(scenes["names"].tolist()):
+        depth = gel_contact.poses_to_gel_depths(meshes[str(scenes["objects"][s])], scenes["T_world_object"][s],
+                                                scenes["T_world_sensors"][s], image_step)
+        if np.any(gel_contact.empty_true_masks(depth[0] > 0)):
+            out.append(name)
+    return out
 
 
 def timing_summary(ranked) -> dict[str, float]:
@@ -56,12 +79,20 @@ def main(argv: list[str] | None = None) -> int:
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]
     objects_data = {obj: evaluation.load_object_reference(artifacts, obj) for obj in objects}
+    meshes = {obj: mesh_arrays(ref.surface.mesh) for obj, ref in objects_data.items()}
     k = evaluation.TOP_K
+    image_step, image_iou_min = int(cfg.evaluate.contact_image_step), float(cfg.evaluate.contact_image_iou_min)
+    untouched = scenes_with_untouched_sensors(scenes, meshes, image_step)
+    if untouched:
+        # The scene sets press every sensor into the object, so this marks a broken scene. It is kept; such
+        # a sensor agrees with an estimate only when the estimate leaves it untouched too (gel_contact).
+        warnings.warn(f"{args.scene_set}: {len(untouched)} scene(s) with a sensor that the true pose does not "
+                      f"press, e.g. {', '.join(untouched[:5])}", stacklevel=1)
 
     summary, details, headline = {}, {}, {}
     for method in METHODS:
         ranked = read_artifact(layout.run_dir(artifacts, args.scene_set, method) / "ranked.h5", "ranked")
-        errors = method_errors(ranked, scenes, objects_data, k)
+        errors = method_errors(ranked, scenes, objects_data, meshes, k, image_step, image_iou_min)
         by_object = evaluation.summarise_by_object(errors, scenes["objects"])
         summary[method] = by_object
         headline[method] = {**by_object.get("average", {}), **timing_summary(ranked), "n_scenes": len(scenes["names"]),
@@ -75,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.scene_set}/{method}: " + ", ".join(
             f"{key} {headline[method].get(key, float('nan')):.2f}"
             for key in ("pos_err_cm_top1", "adi_auc_paper_top1", "adi_auc_rot_top1", "contact_acc_top1",
-                        "time_s_median")))
+                        "contact_acc_image_top1", "time_s_median")))
 
     write_json(layout.metrics_file(artifacts, args.scene_set), headline)
     eval_dir = Path(artifacts) / "eval"

@@ -3,7 +3,10 @@
 The pooling follows the paper's results script: for each object, positional errors are averaged over
 its scenes (#1: the best pose of each scene; #1-5: the mean over each scene's five best); ADI-AUC pools
 the ADIs of the object's scenes (#1: one per scene; #1-5: the five best of every scene together);
-contact accuracy is the share of estimates whose every sensor touches the right kind of surface.
+contact accuracy is the share of estimates whose every sensor touches the right kind of surface;
+image-consistent contact accuracy (``tactile6d.gel_contact``, computed by the evaluate stage, which
+adds it to the errors as ``contact_image_ok``) the share whose every sensor's predicted contact mask
+overlaps the one at the true pose.
 The average row is the mean of the per-object figures.
 """
 
@@ -27,6 +30,7 @@ SUMMARY_KEYS = (
     "adi_auc_std_top1", "adi_auc_std_top5",
     "adi_auc_rot_top1", "adi_auc_rot_top5",
     "contact_acc_top1", "contact_acc_top5",
+    "contact_acc_image_top1", "contact_acc_image_top5",
 )
 
 
@@ -76,6 +80,15 @@ def scene_errors(
     return out
 
 
+def pad_to_k(values: np.ndarray, k: int = TOP_K) -> np.ndarray:
+    """Per-estimate values (n,) of a scene's n <= k best estimates -> (k,) float, NaN where there is no
+    estimate (the layout of ``scene_errors``' arrays)."""
+    values = np.asarray(values, dtype=np.float64).ravel()[:k]
+    out = np.full(k, np.nan)
+    out[: len(values)] = values
+    return out
+
+
 def _auc(values: np.ndarray, variant: str) -> float:
     """ADI-AUC (percent) of pooled ADIs; a missing estimate counts as a failure (infinite ADI)."""
     d = np.where(np.isnan(values), np.inf, values).ravel()
@@ -85,13 +98,15 @@ def _auc(values: np.ndarray, variant: str) -> float:
 def summarise(errors: dict[str, np.ndarray]) -> dict[str, float]:
     """Table I figures of one group of scenes: errors holds (S, k) arrays from ``scene_errors``.
 
-    A scene without estimates counts as a failure in the AUCs and contact accuracy, and is left out
-    of the positional error (which has no value for it).
+    A scene without estimates counts as a failure in the AUCs and contact accuracies, and is left out
+    of the positional error (which has no value for it). The image-consistent contact accuracy
+    (``contact_acc_image_*``) is there when errors hold ``contact_image_ok`` (S, k) (1.0 / 0.0 / NaN),
+    and is pooled like ``contact_ok``.
     """
     pos, adi, rot, ok = (np.asarray(errors[key]) for key in ("position", "adi", "adi_rotation", "contact_ok"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # nanmean of a scene without estimates
-        return {
+        out = {
             "pos_err_cm_top1": float(100.0 * np.nanmean(pos[:, 0])),
             "pos_err_cm_top5": float(100.0 * np.nanmean(np.nanmean(pos, axis=1))),
             "adi_auc_paper_top1": _auc(adi[:, 0], "paper"),
@@ -103,10 +118,16 @@ def summarise(errors: dict[str, np.ndarray]) -> dict[str, float]:
             "contact_acc_top1": float(100.0 * np.mean(np.nan_to_num(ok[:, 0]))),
             "contact_acc_top5": float(100.0 * np.mean(np.nan_to_num(ok))),
         }
+    if "contact_image_ok" in errors:
+        image_ok = np.asarray(errors["contact_image_ok"])
+        out["contact_acc_image_top1"] = float(100.0 * np.mean(np.nan_to_num(image_ok[:, 0])))
+        out["contact_acc_image_top5"] = float(100.0 * np.mean(np.nan_to_num(image_ok)))
+    return out
 
 
 def summarise_by_object(errors: dict[str, np.ndarray], objects: np.ndarray) -> dict[str, dict[str, float]]:
-    """``summarise`` per object, plus ``"average"``: the mean over objects of each figure."""
+    """``summarise`` per object, plus ``"average"``: the mean over objects of each figure (the keys of
+    ``SUMMARY_KEYS`` that ``summarise`` gives)."""
     objects = np.asarray(objects)
     per_object = {
         str(obj): summarise({key: value[objects == obj] for key, value in errors.items()})
@@ -114,7 +135,8 @@ def summarise_by_object(errors: dict[str, np.ndarray], objects: np.ndarray) -> d
     }
     if per_object:
         per_object["average"] = {
-            key: float(np.nanmean([row[key] for row in per_object.values()])) for key in SUMMARY_KEYS
+            key: float(np.nanmean([row[key] for row in per_object.values()]))
+            for key in SUMMARY_KEYS if all(key in row for row in per_object.values())
         }
     return per_object
 

@@ -1,6 +1,7 @@
 """Stage evaluate on fabricated scenes and ranked poses with known errors."""
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -9,7 +10,7 @@ import trimesh
 from stages import evaluate
 from tactile6d import layout
 from tactile6d.geometry import make_pose
-from tactile6d.io import write_artifact
+from tactile6d.io import read_artifact, write_artifact
 from tactile6d.meshes import pack_pieces
 from tactile6d.sensor import sensor_poses_touching
 
@@ -31,9 +32,11 @@ def artifacts(tmp_path):
         "images": np.zeros((2, 3, 320, 240, 3), np.uint8), "contact_points": np.zeros((2, 3, 3)),
         "contact_normals": np.zeros((2, 3, 3)), "contact_types": np.zeros((2, 3), int)})
     shift = make_pose(np.eye(3), [0.0, 0.03, 0.0])
-    for method, offset in (("ours", np.eye(4)), ("baseline", shift)):
+    # ours: the true pose, then a pose 1 cm below it (the top sensor no longer pressed)
+    below = make_pose(np.eye(3), [0.0, 0.0, -0.01])
+    for method, offsets in (("ours", (np.eye(4), below)), ("baseline", (shift, shift))):
         poses = np.full((2, 5, 4, 4), np.nan)
-        poses[:, :2] = np.stack([T_gt @ offset, T_gt @ offset], axis=1)
+        poses[:, :2] = np.stack([T_gt @ offsets[0], T_gt @ offsets[1]], axis=1)
         write_artifact(layout.run_dir(tmp_path, "tiny", method) / "ranked.h5", "ranked", {
             "names": names, "objects": np.array(["box", "box"]), "T_world_sensors": sensors,
             "failure": np.array(["", ""]), "poses": poses, "scores": np.zeros((2, 5)), "losses": np.zeros((2, 5)),
@@ -44,17 +47,40 @@ def artifacts(tmp_path):
 
 
 def test_metrics_file_has_the_keys_and_the_values(artifacts):
-    assert evaluate.main(["--scene-set", "tiny", f"paths.artifacts_dir={artifacts}"]) == 0
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*does not press")  # every sensor is pressed at the true poses
+        assert evaluate.main(["--scene-set", "tiny", f"paths.artifacts_dir={artifacts}"]) == 0
     m = json.loads(layout.metrics_file(artifacts, "tiny").read_text())
     assert set(m) == {"ours", "baseline"}
     for key in ("pos_err_cm_top1", "pos_err_cm_top5", "adi_auc_paper_top1", "adi_auc_std_top1",
-                "adi_auc_rot_top1", "contact_acc_top1", "time_s_median", "n_scenes"):
+                "adi_auc_rot_top1", "contact_acc_top1", "contact_acc_top5", "contact_acc_image_top1",
+                "contact_acc_image_top5", "time_s_median", "n_scenes"):
         assert key in m["ours"] and key in m["baseline"]
     assert m["ours"]["pos_err_cm_top1"] == 0 and m["ours"]["contact_acc_top1"] == 100
     assert m["ours"]["adi_auc_paper_top1"] == 100
+    # image-consistent: the true pose of each scene yes, the pose 1 cm below no, the 3 missing ones no
+    assert m["ours"]["contact_acc_image_top1"] == 100
+    assert m["ours"]["contact_acc_image_top5"] == pytest.approx(20)
+    assert m["ours"]["contact_acc_top5"] == pytest.approx(20)
+    assert m["baseline"]["contact_acc_image_top1"] == 0
     assert m["baseline"]["pos_err_cm_top1"] == pytest.approx(3.0)
     assert m["baseline"]["contact_acc_top1"] == 0  # 3 cm off: the sensors no longer touch
     assert m["ours"]["time_s_median"] == pytest.approx(0.6)  # 0.5 and 0.7 s per estimate
     assert m["ours"]["n_scenes"] == 2
+    details = json.loads((artifacts / "eval" / "tiny.json").read_text())
+    assert details["ours"]["per_scene"]["box/scene_0"]["contact_image_ok"][:2] == [1.0, 0.0]
     table = (artifacts / "eval" / "tiny_table.md").read_text()
     assert "| box |" in table and "| **average** |" in table
+
+
+def test_a_sensor_untouched_at_the_true_pose_is_reported(artifacts):
+    path = layout.scenes_file(artifacts, "tiny")
+    scenes = dict(read_artifact(path, "scenes").data)
+    scenes["T_world_sensors"] = scenes["T_world_sensors"].copy()
+    scenes["T_world_sensors"][1, 0, 2, 3] += 0.01  # scene 1: the top sensor lifted 1 cm off the box
+    write_artifact(path, "scenes", scenes)
+    with pytest.warns(UserWarning, match="1 scene.*box/scene_1"):
+        assert evaluate.main(["--scene-set", "tiny", f"paths.artifacts_dir={artifacts}"]) == 0
+    m = json.loads(layout.metrics_file(artifacts, "tiny").read_text())
+    # scene 1's true pose leaves the lifted sensor untouched, and so does the estimate (the true pose)
+    assert m["ours"]["contact_acc_image_top1"] == 100

@@ -78,3 +78,20 @@ def test_ablation_table_has_a_row_per_variant_and_columns_per_sensor_count():
     assert table[0].startswith("| variant | L1 pos (cm) | L1 rot AUC | L1 contact | L1 s | L2 pos (cm)")
     assert table[2] == "| paper | 1.23 | 95.0 | 50.0 | 0.31 | 1.23 | 95.0 | 50.0 | 0.31 |"
     assert table[3] == "| default | nan | nan | nan | nan | 1.23 | 95.0 | 50.0 | 0.31 |"
+
+
+def test_image_contact_accuracy_is_pooled_like_contact_accuracy():
+    # two scenes: all five estimates consistent; the best inconsistent, then 2 of 4, and no fifth estimate
+    image_ok = np.stack([np.ones(5), evaluation.pad_to_k([0.0, 1.0, 0.0, 1.0])])
+    np.testing.assert_array_equal(np.isnan(image_ok[1]), [False] * 4 + [True])
+    errors = {"position": np.zeros((2, 5)), "adi": np.zeros((2, 5)), "adi_rotation": np.zeros((2, 5)),
+              "contact_ok": np.ones((2, 5)), "contact_image_ok": image_ok}
+    summary = evaluation.summarise(errors)
+    assert summary["contact_acc_image_top1"] == pytest.approx(50)
+    assert summary["contact_acc_image_top5"] == pytest.approx(70)  # 7 of 10, the missing one a failure
+    assert summary["contact_acc_top1"] == 100
+    by_obj = evaluation.summarise_by_object(errors, np.array(["a", "b"]))
+    assert by_obj["average"]["contact_acc_image_top1"] == pytest.approx(50)
+    # without the key (callers that do not compute it) the figures are simply absent
+    del errors["contact_image_ok"]
+    assert "contact_acc_image_top1" not in evaluation.summarise_by_object(errors, np.array(["a", "b"]))["average"]
