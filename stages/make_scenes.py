@@ -1,4 +1,5 @@
-"""Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported, ``validation`` generated).
+"""Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported; ``validation`` and ``offaxis``
+generated).
 
 Reads the objects' artifacts (meshes for contact types; surface points so validation contacts avoid
 database points), the paper's triplets from the data directory, config sections ``scenes`` and
@@ -21,7 +22,7 @@ from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, read_scene_dir, write_artifact
 from tactile6d.render import DigitRenderer, load_background_bgr
 
-SCENE_SETS = ("caddeo2023", "validation")
+SCENE_SETS = ("caddeo2023", "validation", "offaxis")
 
 
 def load_mesh(artifacts_dir: str, name: str) -> trimesh.Trimesh:
@@ -55,8 +56,9 @@ def import_caddeo2023(object_names: list[str], store: DataStore, artifacts_dir: 
                                                surfaces)
 
 
-def generate_validation(object_names: list[str], cfg, store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
-    v = cfg.scenes.validation
+def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
+    """A generated scene set from its config section ``scenes.<scene_set>``."""
+    v = cfg.scenes[scene_set]
     spec = scenes.ValidationSpec(
         scenes_per_object=int(v.scenes_per_object),
         n_sensors=int(v.n_sensors),
@@ -64,6 +66,8 @@ def generate_validation(object_names: list[str], cfg, store: DataStore, artifact
         depth_range=(float(v.depth_min), float(v.depth_max)),
         translation_range=float(v.translation_range),
         min_database_distance=float(v.min_database_distance),
+        tilt_max=float(np.radians(v.tilt_max_deg)),
+        gel_offset_max=float(v.gel_offset_max),
     )
     meshes = {o: load_mesh(artifacts_dir, o) for o in object_names}
     surfaces = {o: contact.sample_surface(m) for o, m in meshes.items()}
@@ -74,7 +78,7 @@ def generate_validation(object_names: list[str], cfg, store: DataStore, artifact
         return np.stack([renderer.render(meshes[obj], T_world_object, T, seed + i).image
                          for i, T in enumerate(T_world_sensors)])
 
-    with tqdm(total=len(object_names) * spec.scenes_per_object, desc="validation scenes", unit="scene") as bar:
+    with tqdm(total=len(object_names) * spec.scenes_per_object, desc=f"{scene_set} scenes", unit="scene") as bar:
         return scenes.generate_validation(object_names, meshes, surfaces, database, render, spec, int(v.seed),
                                           progress=bar.update)
 
@@ -91,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     if scene_set == "caddeo2023":
         out = import_caddeo2023(object_names, store, artifacts_dir)
     else:
-        out = generate_validation(object_names, cfg, store, artifacts_dir)
+        out = generate(scene_set, object_names, cfg, store, artifacts_dir)
     counts = np.bincount(out.contact_types.ravel(), minlength=len(contact.CONTACT_TYPES))
     print(f"{scene_set}: {len(out)} scenes; contact types "
           + ", ".join(f"{t} {c}" for t, c in zip(contact.CONTACT_TYPES, counts)))

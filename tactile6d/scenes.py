@@ -1,4 +1,6 @@
-"""Scene sets with ground truth: the paper's 40 triplets, and generated validation scenes.
+"""Scene sets with ground truth: the paper's 40 triplets, and generated scenes (``validation``, where every
+sensor touches with its gel apex along the surface normal, and ``offaxis``, where each sensor is tilted
+and touches off the gel's centre, as a fingertip does).
 
 A scene is one object at a known pose touched by L sensors. Arrays (S scenes, L sensors):
 ``objects`` (S,) str, ``T_world_object`` (S, 4, 4), ``T_world_sensors`` (S, L, 4, 4),
@@ -16,9 +18,25 @@ import numpy as np
 import trimesh
 
 from tactile6d import contact
+from tactile6d.errors import InputError
+from tactile6d.geometry import (
+    invert_pose,
+    make_pose,
+    orthonormal_frame,
+    random_rotations,
+    rotvec_to_rotmat,
+    transform_points,
+)
 from tactile6d.io import Artifact, Schema, register_schema
-from tactile6d.geometry import invert_pose, make_pose, random_rotations, transform_points
-from tactile6d.sensor import BOX_CENTER, BOX_HALF_EXTENTS, contact_normals, contact_points, sensor_poses_touching
+from tactile6d.render import CAMERA_POSITION, gel_surface
+from tactile6d.sensor import (
+    BOX_CENTER,
+    BOX_HALF_EXTENTS,
+    GEL_CENTER,
+    contact_normals,
+    contact_points,
+    sensor_poses_touching,
+)
 
 # The paper's ground truth for all 40 triplets (DESIGN §5).
 CADDEO2023_T_WORLD_OBJECT = make_pose(np.eye(3), [0.1, 0.0, 0.2])
@@ -115,7 +133,13 @@ def body_penetrates(surface: contact.SurfaceSamples, T_object_sensor: np.ndarray
 
 @dataclass(frozen=True)
 class ValidationSpec:
-    """How validation scenes are drawn (config section ``scenes.validation``)."""
+    """How generated scenes are drawn (config section ``scenes.<set>``; validation and offaxis alike).
+
+    tilt_max (rad): each sensor's +x axis is turned from the inward surface normal by an angle uniform in
+    [0, tilt_max] about a random axis; gel_offset_max (m): the gel point that touches is off the gel's
+    centre by up to this in y and z (uniform). Both 0: the sensor touches with its apex, as in the
+    paper's data, and no extra random numbers are drawn.
+    """
 
     scenes_per_object: int = 4
     n_sensors: int = 3
@@ -124,6 +148,44 @@ class ValidationSpec:
     translation_range: float = 0.05
     min_database_distance: float = 0.0005
     max_tries: int = 200
+    tilt_max: float = 0.0
+    gel_offset_max: float = 0.0
+
+    @property
+    def off_axis(self) -> bool:
+        return self.tilt_max > 0 or self.gel_offset_max > 0
+
+
+def gel_point(offset_y: float, offset_z: float) -> np.ndarray:
+    """(3,) sensor frame, m: the point of the undeformed gel surface seen by the camera ray through the
+    point (offset_y, offset_z) from the gel's centre in the apex plane; (0, 0) gives the apex."""
+    apex_distance = GEL_CENTER[0] - CAMERA_POSITION[0]
+    ray = np.array([1.0, offset_y / apex_distance, offset_z / apex_distance])
+    points, _ = gel_surface(ray[None])
+    return points[0]
+
+
+def sensor_pose_touching_off_axis(
+    point: np.ndarray, normal: np.ndarray, roll: float, depth: float, tilt_axis_angle: float, tilt: float,
+    gel_offset: np.ndarray,
+) -> np.ndarray:
+    """A sensor pose (4, 4) ``T_surfaceframe_sensor`` whose gel touches ``point`` (3,) off its centre and
+    tilted.
+
+    The sensor's +x axis is ``-normal`` turned by ``tilt`` (rad) about the axis perpendicular to the
+    normal at angle ``tilt_axis_angle`` (rad) in the normal's ``geometry.orthonormal_frame``; ``roll``
+    then turns the sensor about its own +x axis. The gel point ``gel_point(*gel_offset)`` (gel_offset
+    (2,) m in y, z) is pushed ``depth`` (m) toward the camera, along the sensor's -x, onto ``point``: the
+    object presses into the gel there by ``depth``. With tilt 0 and offset 0 this is
+    ``sensor.sensor_poses_touching`` (the landmark is not used here, so the contact sits at the apex).
+    """
+    normal = np.asarray(normal, dtype=np.float64)
+    normal = normal / np.linalg.norm(normal)
+    frame = orthonormal_frame(-normal)
+    axis = frame[:, 1] * np.cos(tilt_axis_angle) + frame[:, 2] * np.sin(tilt_axis_angle)
+    R = rotvec_to_rotmat(tilt * axis) @ frame @ rotvec_to_rotmat(roll * np.array([1.0, 0.0, 0.0]))
+    touching = gel_point(*gel_offset) - np.array([depth, 0.0, 0.0])
+    return make_pose(R, np.asarray(point, dtype=np.float64) - R @ touching)
 
 
 def draw_validation_scene(
@@ -154,7 +216,14 @@ def draw_validation_scene(
         if j in chosen_idx:
             continue
         depth = rng.uniform(*spec.depth_range)
-        T = sensor_poses_touching(candidates[j], candidate_normals[j], rng.uniform(-np.pi, np.pi), depth)
+        roll = rng.uniform(-np.pi, np.pi)
+        if spec.off_axis:
+            tilt_axis_angle, tilt = rng.uniform(-np.pi, np.pi), rng.uniform(0.0, spec.tilt_max)
+            offset = rng.uniform(-spec.gel_offset_max, spec.gel_offset_max, 2)
+            T = sensor_pose_touching_off_axis(candidates[j], candidate_normals[j], roll, depth, tilt_axis_angle,
+                                              tilt, offset)
+        else:
+            T = sensor_poses_touching(candidates[j], candidate_normals[j], roll, depth)
         if body_penetrates(surface, T) or any(boxes_overlap(T, other) for other in chosen_T):
             continue
         chosen_T.append(T)
@@ -195,9 +264,14 @@ def generate_validation(
     seed: int,
     progress: Callable | None = None,
 ) -> SceneSet:
-    """Validation scenes: for each object, ``scenes_per_object`` uniformly random object rotations (and
+    """Generated scenes: for each object, ``scenes_per_object`` uniformly random object rotations (and
     translations within +-``translation_range`` of (0.1, 0, 0.2) m), L sensors from
-    ``draw_validation_scene``; images from ``render(object, T_world_object, T_world_sensors, seed)``."""
+    ``draw_validation_scene``; images from ``render(object, T_world_object, T_world_sensors, seed)``.
+
+    A draw whose images cannot be rendered (``render`` raises InputError: a tilted gel pressed deeper
+    than the gel allows, or the object inside a sensor body) is drawn again, at most ``spec.max_tries``
+    times per scene; apex contacts never need it, so their random stream is that of a single draw.
+    """
     rng = np.random.default_rng(seed)
     rows = []
     for obj in object_names:
@@ -206,9 +280,16 @@ def generate_validation(
         for k in range(spec.scenes_per_object):
             T_world_object = make_pose(random_rotations(1, rng)[0],
                                        CADDEO2023_T_WORLD_OBJECT[:3, 3] + rng.uniform(-1, 1, 3) * spec.translation_range)
-            T_object_sensors, idx, _ = draw_validation_scene(mesh, surface, cand, cand_n, cand_t, spec, rng)
-            T_world_sensors = T_world_object @ T_object_sensors
-            images = render(obj, T_world_object, T_world_sensors, int(rng.integers(2**31)))
+            for _ in range(spec.max_tries):
+                T_object_sensors, idx, _ = draw_validation_scene(mesh, surface, cand, cand_n, cand_t, spec, rng)
+                T_world_sensors = T_world_object @ T_object_sensors
+                try:
+                    images = render(obj, T_world_object, T_world_sensors, int(rng.integers(2**31)))
+                    break
+                except InputError:
+                    continue
+            else:
+                raise RuntimeError(f"{obj}: no renderable scene in {spec.max_tries} draws")
             rows.append((f"{obj}/scene_{k}", obj, T_world_object, T_world_sensors, images,
                          transform_points(T_world_object, cand[idx]), cand_n[idx] @ T_world_object[:3, :3].T,
                          cand_t[idx]))

@@ -40,6 +40,26 @@ def test_validation_generation(artifacts):
     assert np.all(diff.reshape(2, 3, -1).max(axis=2) > 60)
 
 
+def test_offaxis_generation_tilts_the_sensors_and_moves_the_imprint_off_centre(artifacts):
+    args = ["--scene-set", "offaxis", f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box]",
+            "scenes.offaxis.scenes_per_object=2"]
+    assert make_scenes.main(args) == 0
+    art = read_artifact(layout.scenes_file(artifacts, "offaxis"), "scenes")
+    assert art["images"].shape == (2, 3, 320, 240, 3)
+    # each sensor's +x axis is within 20 deg of the inward normal at its true contact, and not all along it
+    x_axes = art["T_world_sensors"][..., :3, 0]
+    tilts = np.degrees(np.arccos(np.clip(np.sum(x_axes * -art["contact_normals"], axis=-1), -1, 1)))
+    assert tilts.max() <= 20.0 + 1e-6 and tilts.max() > 2.0
+    # the imprint's centre of mass is off the image centre for most sensors (the apex is at the centre)
+    diff = np.abs(art["images"].astype(int) - np.median(art["images"].reshape(-1, 320, 240, 3), axis=0)).sum(-1)
+    rows, cols = np.mgrid[:320, :240]
+    offsets = []
+    for d in diff.reshape(-1, 320, 240):
+        w = np.where(d > 40, d, 0).astype(float)
+        offsets.append(np.hypot((w * rows).sum() / w.sum() - 159.5, (w * cols).sum() / w.sum() - 119.5))
+    assert np.median(offsets) > 8  # pixels; about 0.7 mm on the gel
+
+
 def test_unknown_scene_set(artifacts):
     with pytest.raises(SystemExit):
         make_scenes.main(["--scene-set", "nope", f"paths.artifacts_dir={artifacts}"])

@@ -92,3 +92,26 @@ def test_generate_validation_ground_truth_is_consistent(box):
         assert np.all((gap >= 0) & (gap <= 0.0005 + 1e-9))
     again = scenes.generate_validation(["b"], {"b": mesh}, {"b": surface}, {"b": np.zeros((1, 3)) + 1}, render, spec, seed=3)
     np.testing.assert_array_equal(again.T_world_sensors, out.T_world_sensors)
+
+
+def test_off_axis_pose_without_tilt_or_offset_is_the_apex_contact():
+    rng = np.random.default_rng(3)
+    p, n = rng.normal(size=3) * 0.05, rng.normal(size=3)
+    n /= np.linalg.norm(n)
+    for roll, depth in ((0.0, 0.0018), (1.2, 0.001)):
+        expected = sensor_poses_touching(p, n, roll, depth)
+        got = scenes.sensor_pose_touching_off_axis(p, n, roll, depth, 0.7, 0.0, np.zeros(2))
+        np.testing.assert_allclose(got, expected, atol=1e-12)
+
+
+def test_off_axis_pose_tilts_by_the_angle_and_presses_the_chosen_gel_point():
+    rng = np.random.default_rng(4)
+    p, n = rng.normal(size=3) * 0.05, rng.normal(size=3)
+    n /= np.linalg.norm(n)
+    tilt, depth, offset = np.radians(15.0), 0.0013, np.array([0.003, -0.002])
+    T = scenes.sensor_pose_touching_off_axis(p, n, 0.4, depth, 2.0, tilt, offset)
+    assert np.degrees(np.arccos(T[:3, 0] @ -n)) == pytest.approx(15.0)
+    g = scenes.gel_point(*offset)
+    np.testing.assert_allclose(T[:3, :3] @ (g - [depth, 0, 0]) + T[:3, 3], p, atol=1e-12)
+    # the gel point lies on the gel, off its centre toward the asked offset, and behind the apex
+    assert 0 < g[1] <= 0.003 and -0.002 <= g[2] - 0.015 < 0 and g[0] < 0.022
