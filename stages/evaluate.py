@@ -45,8 +45,8 @@ def method_errors(ranked, scenes, objects_data, meshes, k: int, image_step: int 
         image = gel_contact.image_consistency(meshes[obj], ranked["poses"][s][:n], scenes["T_world_object"][s],
                                               scenes["T_world_sensors"][s], step=image_step, iou_min=image_iou_min)
         e["contact_image_ok"] = evaluation.pad_to_k(image["consistent"], k)
-        for key in rows:
-            rows[key].append(e[key])
+        for key, values in rows.items():
+            values.append(e[key])
     return {key: np.array(value).reshape(len(names), k) for key, value in rows.items()}
 
 

@@ -96,28 +96,44 @@ def _triangles_to_window(triangles: np.ndarray, grid: GelGrid) -> tuple[int, int
     return r0, r1, c0, c1
 
 
+def pose_to_front(arrays: MeshArrays, T_sensor_object: np.ndarray, grid: GelGrid) -> tuple[np.ndarray, np.ndarray]:
+    """The object's triangles that can press the gel and the grid cells where they can.
+
+    arrays: ``render.mesh_arrays`` of the mesh; T_sensor_object (4, 4) -> triangles (k, 3, 3) in the
+    DIGIT frame, pixels (n,) int: flat indices into the grid (row-major), empty when nothing can press.
+    """
+    T = np.asarray(T_sensor_object, dtype=np.float64)
+    nothing = np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64)
+    vertices = _transform_rows(T[:3, :3], T[:3, 3], arrays.vertex_rows).T  # (V, 3) view
+    faces = _front_triangles(vertices, arrays.faces, sensor.GEL_CENTER[0], grid.half_y, grid.half_z)
+    if len(faces) == 0:
+        return nothing
+    triangles = vertices[arrays.faces[faces]]
+    r0, r1, c0, c1 = _triangles_to_window(triangles, grid)
+    if r0 >= r1 or c0 >= c1:
+        return nothing
+    pixels = (np.arange(r0, r1)[:, None] * grid.shape[1] + np.arange(c0, c1)[None, :]).ravel()
+    # A hit counts only in front of the gel, and no hit lies nearer the camera than the nearest corner
+    # (the rays' x component is 1): the rays whose gel lies nearer cannot press. The margin covers
+    # Embree's float32 rounding, so the rays kept include every one the renderer finds pressed.
+    nearest = triangles[..., 0].min() - CAMERA_POSITION[0]
+    pixels = pixels[grid.gel_t[pixels] > nearest - 1e-6]
+    return triangles, pixels
+
+
 def pose_to_gel_depth(arrays: MeshArrays, T_sensor_object: np.ndarray, grid: GelGrid, caster: _RayCaster) -> np.ndarray:
     """How far the object at ``T_sensor_object`` (4, 4) presses into the gel: (h, w) float32 m, 0 where not.
 
     arrays: ``render.mesh_arrays`` of the mesh; grid: ``gel_grid``; caster: a ``render._RayCaster``
     (one per thread). The same triangles, rays and hit test as ``DigitRenderer.contact``.
     """
-    T = np.asarray(T_sensor_object, dtype=np.float64)
-    h, w = grid.shape
-    depth = np.zeros(h * w, dtype=np.float32)
-    vertices = _transform_rows(T[:3, :3], T[:3, 3], arrays.vertex_rows).T  # (V, 3) view
-    faces = _front_triangles(vertices, arrays.faces, sensor.GEL_CENTER[0], grid.half_y, grid.half_z)
-    if len(faces) == 0:
-        return depth.reshape(h, w)
-    triangles = vertices[arrays.faces[faces]]
-    r0, r1, c0, c1 = _triangles_to_window(triangles, grid)
-    if r0 >= r1 or c0 >= c1:
-        return depth.reshape(h, w)
-    pixels = (np.arange(r0, r1)[:, None] * w + np.arange(c0, c1)[None, :]).ravel()
-    t, prim, _, _ = caster.first_hits(triangles, grid.rays[r0:r1, c0:c1].reshape(-1, 3))
-    hit = (prim >= 0) & (t < grid.gel_t[pixels])
-    depth[pixels[hit]] = grid.gel_t[pixels[hit]] - t[hit]
-    return depth.reshape(h, w)
+    depth = np.zeros(grid.shape[0] * grid.shape[1], dtype=np.float32)
+    triangles, pixels = pose_to_front(arrays, T_sensor_object, grid)
+    if len(pixels):
+        t, prim, _, _ = caster.first_hits(triangles, grid.rays.reshape(-1, 3)[pixels])
+        hit = (prim >= 0) & (t < grid.gel_t[pixels])
+        depth[pixels[hit]] = grid.gel_t[pixels[hit]] - t[hit]
+    return depth.reshape(grid.shape)
 
 
 def poses_to_gel_depths(
@@ -132,7 +148,8 @@ def poses_to_gel_depths(
     mesh: the object (its own frame); T_world_object (P, 4, 4) or (4, 4); T_world_sensors (L, 4, 4);
     step: ray-grid step in pixels (divides 240 and 320). -> depth (P, L, h, w) float32 m, 0 where the
     object does not press into the gel; (h, w) = (320, 240) / step, row 0 at the top of the image.
-    caster: reuse one across calls to save creating an Embree device.
+    caster: reuse one across calls to save creating an Embree device. The depths are bit-identical to
+    ``DigitRenderer.contact``'s on the same grid.
     """
     arrays = mesh_arrays(mesh)
     T_objects = np.asarray(T_world_object, dtype=np.float64).reshape(-1, 4, 4)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import gel_contact, sensor
+from tactile6d import agreement, gel_contact, optimize, sensor
 from tactile6d.geometry import invert_pose, make_pose, rotvec_to_rotmat
 from tactile6d.meshes import make_primitive
 from tactile6d.render import DigitRenderer, mesh_arrays
@@ -124,3 +124,94 @@ def test_no_estimates_and_bad_steps(box):
     assert result["consistent"].shape == (0,) and result["iou"].shape == (0, 3)
     with pytest.raises(Exception, match="must divide"):
         gel_contact.gel_grid(7)
+
+
+# --- render-and-compare (tactile6d.agreement) -----------------------------------------------------------
+
+
+def test_agreement_terms_by_hand():
+    obs_mask = np.zeros((1, 3, 4), dtype=bool)
+    obs_mask[0, 0, :2] = True  # two cells pressed 1 mm
+    obs_depth = np.where(obs_mask, 0.001, 0.0)
+    pred = np.zeros((2, 1, 3, 4))
+    pred[0, 0, 0, :2] = [0.001, 0.002]  # same cells, one 1 mm too deep
+    pred[1, 0, 0, 1:3] = 0.001  # shifted by one cell: one shared, one missed, one in free space
+    terms = agreement.depths_to_agreement(obs_mask, obs_depth, pred)
+    np.testing.assert_allclose(terms["iou"][:, 0], [1.0, 1 / 3])
+    np.testing.assert_allclose(terms["depth_residual"][:, 0], [0.0005, 0.002 / 3])
+    np.testing.assert_allclose(terms["free_space_area"][:, 0], [0.0, 1 / 12])
+    np.testing.assert_allclose(terms["free_space_depth"][:, 0], [0.0, 0.001])
+    cost = agreement.agreement_to_cost(terms, mask_weight=1.0, depth_weight=1000.0, free_area_weight=12.0,
+                                       free_depth_weight=0.0)
+    np.testing.assert_allclose(cost, [0.5, 2 / 3 + 2 / 3 + 1.0])
+    # a margin forgives shallow presses into free gel, and that much of deeper ones
+    margin = agreement.depths_to_agreement(obs_mask, obs_depth, pred, free_margin=0.0004)
+    np.testing.assert_allclose(margin["free_space_depth"][:, 0], [0.0, 0.0006])
+    pred[1, 0, 0, 2] = 0.0003
+    margin = agreement.depths_to_agreement(obs_mask, obs_depth, pred, free_margin=0.0004)
+    np.testing.assert_allclose(margin["free_space_area"][:, 0], [0.0, 0.0])
+    # nothing seen and nothing predicted agree perfectly
+    empty = agreement.depths_to_agreement(np.zeros((1, 3, 4), bool), np.zeros((1, 3, 4)), np.zeros((1, 1, 3, 4)))
+    assert agreement.agreement_to_cost(empty)[0] == 0.0
+
+
+def test_image_to_grid_takes_block_means():
+    image = np.arange(16.0).reshape(4, 4)
+    np.testing.assert_allclose(agreement.image_to_grid(image, 2), [[2.5, 4.5], [10.5, 12.5]])
+    mask = np.zeros((2, 320, 240), dtype=bool)
+    mask[1, :4, :4] = True
+    grid = agreement.image_to_grid(mask, 4)
+    assert grid.shape == (2, 80, 60) and grid[1, 0, 0] == 1.0 and grid.sum() == 1.0
+    with pytest.raises(Exception, match="must divide"):
+        agreement.image_to_grid(image, 3)
+
+
+def _edge_box_scene():
+    """A box with sensors on its top and bottom faces 5 mm from an edge and one on a side face; the
+    object shifted along that edge's normal keeps every contact point on the same flat face."""
+    mesh = trimesh.creation.box(extents=(0.10, 0.06, 0.04))
+    p = np.array([[0.045, 0.0, 0.02], [0.045, 0.005, -0.02], [0.0, -0.03, 0.0]])
+    n = np.array([[0, 0, 1.0], [0, 0, -1.0], [0, -1.0, 0]])
+    return mesh, p, n, [np.array([-0.003, 0.0, 0.0]), np.array([0.003, 0.0, 0.0])]
+
+
+def _rim_cylinder_scene():
+    """A cylinder with three sensors around its side 5 mm below the top rim; the object slid along its
+    axis keeps every contact point on the side."""
+    mesh = trimesh.creation.cylinder(radius=0.03, height=0.1, sections=128)
+    angles = np.deg2rad([0.0, 120.0, 240.0])
+    n = np.stack([np.cos(angles), np.sin(angles), np.zeros(3)], axis=1)
+    p = 0.03 * n + [0.0, 0.0, 0.045]
+    return mesh, p, n, [np.array([0.0, 0.0, -0.003]), np.array([0.0, 0.0, 0.003])]
+
+
+@pytest.mark.parametrize("make_scene", [_edge_box_scene, _rim_cylinder_scene], ids=["box", "cylinder"])
+def test_render_and_compare_prefers_the_true_pose_where_the_point_loss_cannot(make_scene):
+    mesh, p, n, shifts = make_scene()
+    sensors = T_GT @ sensor_poses_touching(p, n, [0.3, -0.5, 1.2], 0.0018)
+    poses = np.stack([T_GT] + [T_GT @ make_pose(np.eye(3), s) for s in shifts])
+
+    # The pair-distance loss with each pose's best tuple (the sensors' landmarks snapped to the surface)
+    # is the same for the true and the shifted poses.
+    s_world = sensor.contact_points(sensors)
+    tuples = np.stack([mesh.nearest.on_surface((invert_pose(T)[:3, :3] @ s_world.T).T + invert_pose(T)[:3, 3])[0]
+                       for T in poses])
+    losses = optimize.poses_to_losses(poses, tuples, s_world)
+    assert losses[1:] == pytest.approx([losses[0]] * 2, abs=1e-7)
+
+    # What the sensors see at the true pose, a little degraded as an estimate from images would be: depth
+    # 10 % shallow with noise, the mask thresholded so that the faintest rim is lost.
+    step = 4
+    true_depth = gel_contact.poses_to_gel_depths(mesh, T_GT, sensors, step)[0]
+    rng = np.random.default_rng(0)
+    observed_depth = np.clip(0.9 * true_depth + rng.normal(0, 5e-5, true_depth.shape), 0, None) * (true_depth > 0)
+    observed_mask = observed_depth > 1e-4
+    for free_margin in (0.0, 1e-4):
+        terms = agreement.poses_to_agreement(mesh, poses, sensors, observed_mask, observed_depth, step, free_margin)
+        cost = agreement.agreement_to_cost(terms)
+        assert cost[0] < cost[1:].min()
+    assert (terms["iou"][0] > terms["iou"][1:].min(axis=0)).any()
+    # sliding toward the edge or rim shrinks a patch; away from it, the object presses gel the image shows free
+    assert terms["free_space_area"][2].max() > terms["free_space_area"][0].max()
+    np.testing.assert_array_equal(terms["predicted_depth"][0], true_depth)
+
