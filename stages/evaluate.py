@@ -26,8 +26,8 @@ METHODS = ("ours", "baseline")
 STEPS = ("encode", "select", "optimize", "rank")
 
 
-def method_errors(ranked, scenes, objects_data, meshes, k: int, image_step: int = gel_contact.DEFAULT_STEP,
-                  image_iou_min: float = gel_contact.IOU_MIN) -> dict[str, np.ndarray]:
+def method_errors(ranked, scenes, objects_data, meshes, k: int, image_step: int,
+                  image_iou_min: float) -> dict[str, np.ndarray]:
     """Per-scene (S, k) error arrays of one method's ranked poses: ``evaluation.scene_errors`` and
     ``contact_image_ok`` (1.0 / 0.0, NaN where there is no estimate): ``gel_contact.image_consistency`` on
     a ray grid of ``image_step`` pixels with the IoU threshold ``image_iou_min``. meshes: object name ->

@@ -107,7 +107,7 @@ def poses_to_agreement(
     T_world_sensors: np.ndarray,
     observed_mask: np.ndarray,
     observed_depth: np.ndarray,
-    step: int = gel_contact.DEFAULT_STEP,
+    step: int,
     free_margin: float = 0.0,
     caster: _RayCaster | None = None,
 ) -> dict[str, np.ndarray]:

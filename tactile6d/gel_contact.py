@@ -33,9 +33,6 @@ from tactile6d.render import (
     pixel_rays,
 )
 
-DEFAULT_STEP = 4  # pixels per ray-grid cell side: 60 x 80 rays, cells about a third of a millimetre on the gel
-IOU_MIN = 0.5  # the image-consistency threshold on each sensor's mask IoU
-
 
 @dataclass(frozen=True)
 class GelGrid:
@@ -56,7 +53,7 @@ class GelGrid:
 
 
 @functools.lru_cache(maxsize=8)
-def gel_grid(step: int = DEFAULT_STEP, width: int = sensor.IMAGE_WIDTH, height: int = sensor.IMAGE_HEIGHT) -> GelGrid:
+def gel_grid(step: int, width: int = sensor.IMAGE_WIDTH, height: int = sensor.IMAGE_HEIGHT) -> GelGrid:
     """The ray grid of a ``width`` x ``height`` DIGIT image cast every ``step`` pixels (as ``DigitRenderer``
     builds it for ``render_step=step``). Cached: the grid is read-only."""
     if step < 1 or width % step or height % step:
@@ -140,7 +137,7 @@ def poses_to_gel_depths(
     mesh: trimesh.Trimesh | MeshArrays,
     T_world_object: np.ndarray,
     T_world_sensors: np.ndarray,
-    step: int = DEFAULT_STEP,
+    step: int,
     caster: _RayCaster | None = None,
 ) -> np.ndarray:
     """Each sensor's press depth for each object pose.
@@ -178,7 +175,7 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def masks_to_image_consistent(
-    masks_est: np.ndarray, masks_true: np.ndarray, iou_min: float = IOU_MIN
+    masks_est: np.ndarray, masks_true: np.ndarray, iou_min: float
 ) -> np.ndarray:
     """Whether estimates press every sensor where the true pose does.
 
@@ -203,8 +200,8 @@ def image_consistency(
     T_world_object_est: np.ndarray,
     T_world_object_gt: np.ndarray,
     T_world_sensors: np.ndarray,
-    step: int = DEFAULT_STEP,
-    iou_min: float = IOU_MIN,
+    step: int,
+    iou_min: float,
     caster: _RayCaster | None = None,
 ) -> dict[str, np.ndarray]:
     """The image-consistent contact metric of K estimates of one scene.

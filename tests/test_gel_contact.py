@@ -82,22 +82,22 @@ def test_masks_to_image_consistent_needs_every_sensor():
     true[:, :2, :2] = True
     est = true.copy()
     est[1, 2, :2] = True  # sensor 1: IoU 4 / 6
-    assert gel_contact.masks_to_image_consistent(est, true)
+    assert gel_contact.masks_to_image_consistent(est, true, iou_min=0.5)
     assert not gel_contact.masks_to_image_consistent(est, true, iou_min=0.7)
     est[0] = False  # sensor 0 no longer pressed
-    assert not gel_contact.masks_to_image_consistent(est, true)
+    assert not gel_contact.masks_to_image_consistent(est, true, iou_min=0.5)
     # a sensor untouched at the true pose agrees only with an estimate that leaves it untouched
     true[1] = False
     np.testing.assert_array_equal(gel_contact.empty_true_masks(true), [False, True])
     both = np.stack([true, true | np.eye(4, dtype=bool)[None]])
-    np.testing.assert_array_equal(gel_contact.masks_to_image_consistent(both, true), [True, False])
+    np.testing.assert_array_equal(gel_contact.masks_to_image_consistent(both, true, iou_min=0.5), [True, False])
 
 
 def test_true_pose_and_a_small_error_are_consistent_a_centimetre_is_not(box):
     sensors = box_sensors(T_GT)
     near = perturbed(T_GT, [0.002, -0.001, 0.0], [0.0003, -0.0002, 0.0002])  # a fraction of a millimetre
     far = perturbed(T_GT, [0, 0, 0], [0.0, 0.0, -0.01])  # 1 cm down: the top sensor no longer touches
-    result = gel_contact.image_consistency(box, np.stack([T_GT, near, far]), T_GT, sensors)
+    result = gel_contact.image_consistency(box, np.stack([T_GT, near, far]), T_GT, sensors, step=4, iou_min=0.5)
     assert result["consistent"].tolist() == [True, True, False]
     np.testing.assert_allclose(result["iou"][0], 1.0)
     assert result["iou"][1].min() > 0.7
@@ -113,14 +113,14 @@ def test_a_pose_touching_a_centimetre_away_on_the_gel_is_not_consistent():
     gel_z_in_object = T_sensor[:3, 2]  # the sensor's z axis (image rows), across the rod
     assert abs(gel_z_in_object[2]) < 1e-9
     moved = T_GT @ make_pose(np.eye(3), -0.01 * gel_z_in_object)
-    depth = gel_contact.poses_to_gel_depths(rod, np.stack([T_GT, moved]), sensors)
+    depth = gel_contact.poses_to_gel_depths(rod, np.stack([T_GT, moved]), sensors, step=4)
     assert (depth[1] > 0).any()  # still touching
-    result = gel_contact.image_consistency(rod, moved, T_GT, sensors)
+    result = gel_contact.image_consistency(rod, moved, T_GT, sensors, step=4, iou_min=0.5)
     assert not result["consistent"][0] and result["iou"][0, 0] < 0.1
 
 
 def test_no_estimates_and_bad_steps(box):
-    result = gel_contact.image_consistency(box, np.zeros((0, 4, 4)), T_GT, box_sensors(T_GT))
+    result = gel_contact.image_consistency(box, np.zeros((0, 4, 4)), T_GT, box_sensors(T_GT), step=4, iou_min=0.5)
     assert result["consistent"].shape == (0,) and result["iou"].shape == (0, 3)
     with pytest.raises(Exception, match="must divide"):
         gel_contact.gel_grid(7)
