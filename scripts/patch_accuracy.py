@@ -54,6 +54,12 @@ def mesh_normals_at(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
+def surface_distance_fn(mesh: trimesh.Trimesh, T_object_sensor: np.ndarray):
+    """sensor-frame point (3,) -> distance (m) to the mesh surface."""
+    R, t = T_object_sensor[:3, :3], T_object_sensor[:3, 3]
+    return lambda p: float(trimesh.proximity.closest_point(mesh, (R @ p + t)[None])[1][0])
+
+
 def deepest_truth(depth: np.ndarray, normal_fn, top_band: float, max_pixels: int = 400):
     """The patch definition of the contact applied to a true depth map -> point (3,), normal (3,).
 
@@ -86,8 +92,9 @@ class Collector:
         self.times.append(time.perf_counter() - t)
         return res
 
-    def score(self, name, res, truth_point, truth_normal, true_depth=None, truth="deepest"):
-        """Errors of one estimate (sensor frame) against one truth."""
+    def score(self, name, res, truth_point, truth_normal, true_depth=None, truth="deepest", to_surface=None):
+        """Errors of one estimate (sensor frame) against one truth. to_surface: sensor-frame point (3,) ->
+        its distance (m) to the object's surface, for the off-surface error."""
         if truth == "deepest" or true_depth is None:
             self.add(name, "missed", float(not res.contact))
         if not res.contact:
@@ -96,6 +103,8 @@ class Collector:
         self.add(name, f"normal_deg[{truth}]", angle_deg(res.normal, truth_normal))
         self.add(name, f"landmark_point_mm[{truth}]", 1e3 * float(np.linalg.norm(sensor.CONTACT_POINT - truth_point)))
         self.add(name, f"landmark_normal_deg[{truth}]", angle_deg(np.array([-1.0, 0.0, 0.0]), truth_normal))
+        if to_surface is not None:
+            self.add(name, "off_surface_mm", 1e3 * float(to_surface(res.point)))
         if true_depth is not None and truth == "deepest":
             m = true_depth > 0
             self.add(name, "mask_iou", float((res.mask & m).sum() / max((res.mask | m).sum(), 1)))
@@ -172,7 +181,7 @@ def run(args):
                 tp, tn = deepest_truth(res_true.depth, normal_fn, model.top_band)
                 name = "ycb-offaxis" if offaxis else "ycb-standard"
                 est = col.estimate(res_true.image, nc_paper, model)
-                col.score(name, est, tp, tn, res_true.depth)
+                col.score(name, est, tp, tn, res_true.depth, to_surface=surface_distance_fn(mesh, T))
                 if not offaxis:
                     p_s, n_s = (p - t) @ R, nrm @ R
                     col.score(name, est, p_s, n_s, true_depth=res_true.depth, truth="axis")
@@ -184,9 +193,13 @@ def run(args):
     presses = patch.sample_presses(args.superquadrics, rng, paper, max_tilt=np.deg2rad(20.0), max_offset=0.004,
                                    depth_range=(0.0015, 0.0020))
     images, depths, normals = patch.render_presses(paper, presses, seed=int(rng.integers(2**31)))
-    for image, depth, nrm in zip(images, depths, normals):
+    mesh, shape = None, None
+    for press, image, depth, nrm in zip(presses, images, depths, normals):
+        if press.shape is not shape:
+            shape, mesh = press.shape, patch.shape_to_mesh(press.shape)
         tp, tn = patch.depth_to_contact(depth, nrm.astype(np.float64), model.top_band)
-        col.score("sq-offaxis", col.estimate(image, nc_paper, model), tp, tn, depth)
+        col.score("sq-offaxis", col.estimate(image, nc_paper, model), tp, tn, depth,
+                  to_surface=surface_distance_fn(mesh, press.T_object_sensor))
 
     validation = Path(args.validation)
     if validation.is_file():
@@ -194,13 +207,19 @@ def run(args):
         from tactile6d.scenes import scene_set_from_artifact
 
         scenes = scene_set_from_artifact(read_artifact(validation, "scenes"))
+        ycb = {}
         for s in range(len(scenes)):
+            obj = str(scenes.objects[s])
+            if obj not in ycb and (data / "ycb" / obj).is_dir():
+                ycb[obj] = meshes.clean_mesh(meshes.load_mesh_file(data / "ycb" / obj / "textured_simple.obj"))[0]
             for i in range(scenes.T_world_sensors.shape[1]):
                 T_sensor_world = invert_pose(scenes.T_world_sensors[s, i])
                 p = T_sensor_world[:3, :3] @ scenes.contact_points[s, i] + T_sensor_world[:3, 3]
                 n = T_sensor_world[:3, :3] @ scenes.contact_normals[s, i]
                 est = col.estimate(scenes.images[s, i], nc_paper, model)
-                col.score("validation", est, p, n, truth="axis")
+                T_object_sensor = invert_pose(scenes.T_world_object[s]) @ scenes.T_world_sensors[s, i]
+                to_surface = surface_distance_fn(ycb[obj], T_object_sensor) if obj in ycb else None
+                col.score("validation", est, p, n, truth="axis", to_surface=to_surface)
         print(f"validation scenes: {len(scenes)} from {validation}")
     else:
         print(f"validation scenes: {validation} not found, skipped")

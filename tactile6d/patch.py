@@ -6,16 +6,22 @@ the simulator's background is never needed.
 
 The method is GelSight-style photometric stereo, calibrated on simulated presses of known shape:
 
-1. Difference image ``D = image - no_contact`` (float, RGB), smoothed by a Gaussian. The per-pixel noise
-   level is estimated from the image itself (the median absolute Laplacian residual), so thresholds adapt
-   to the unit and to whether the no-contact image is noisy or clean.
-2. Mask: hysteresis on the smoothed difference magnitude (seeds well above the noise, grown through
-   pixels moderately above it), holes filled, small blobs dropped.
+1. Difference image ``D = image - no_contact`` (float, RGB). The per-pixel noise level is estimated from
+   the image itself (the median absolute Laplacian residual), so thresholds adapt to the unit and to
+   whether the no-contact image is noisy or clean.
+2. Mask: hysteresis on the magnitude of the Gaussian-smoothed difference (seeds well above the smoothed
+   noise, grown through pixels moderately above it, small blobs dropped), then its convex hull, eroded
+   by the spread that the sensor's blur and the smoothing add to the imprint. The hull, because the
+   region where a locally convex object is in front of the convex gel is convex (a sublevel set of a
+   convex function); without it, parts of the imprint whose slope matches the gel's show almost no
+   colour change, fall out of the mask and are wrongly held at zero depth.
 3. Surface normals: a polynomial regression from (smoothed RGB difference, ray direction) to the two
-   lateral components of the visible surface's unit normal. The DIGIT's lights are point lights a few
-   millimetres from the gel, so the same colour means a different slope at different pixels: hence
-   the ray direction among the inputs. Outside the object the visible surface is the gel itself, whose
-   normal is known, so the regression learns "gel" for a faint difference.
+   lateral components of the visible surface's unit normal, evaluated on 2 x 2 pixel blocks. The
+   DIGIT's lights are point lights a few millimetres from the gel, so the same colour means a different
+   slope at different pixels: hence the ray direction among the inputs. Where the mask overshoots, the
+   visible surface is the gel itself, whose normal is known, so the regression learns "gel" for a faint
+   difference. A third output regresses the press depth directly (the lights are closer to a deeper
+   surface); it is a weak cue, used only to fix the depth when the mask has no edge inside the image.
 4. Depth: the camera is a pinhole, so with ``t`` the distance along the camera axis of the surface point
    seen through ray ``(1, u, v)`` and ``n`` its normal, ``d log t / du = -n_y / (n . r)`` and
    ``d log t / dv = -n_z / (n . r)``. ``log t`` is integrated by least squares over the mask on a coarser
@@ -24,9 +30,10 @@ The method is GelSight-style photometric stereo, calibrated on simulated presses
    ``render.RenderResult.depth`` defines.
 5. Contact point: the mean of the object's surface points (``camera + t * ray``) over the pixels pressed
    within ``top_band`` (a fraction of the deepest press) of the deepest, weighted by how far into that
-   band they go. It is the deepest point made robust to the noise of a single pixel; for a flat face
-   pressed square into the gel apex it is the surface point on the gel axis, next to the landmark
-   ``sensor.CONTACT_POINT``. Normal: the same weighted mean of the estimated normals, normalised.
+   band they go. It is the deepest point made robust to the noise of a single pixel and to flat
+   contacts, whose deepest pixel is ill-defined; for a flat face pressed square into the gel apex it is
+   the surface point on the gel axis, next to the landmark ``sensor.CONTACT_POINT``. Normal: the same
+   weighted mean of the estimated normals, normalised.
 
 Calibration (``calibrate``): random superquadrics (spheres, ellipsoids, boxes, edges, corners) pressed
 at random depths, offsets and tilts, rendered by ``render.DigitRenderer`` over a flat grey background
@@ -37,6 +44,7 @@ surface point its true depth gives. Fitting is one linear least-squares solve.
 from __future__ import annotations
 
 import functools
+import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,10 +81,12 @@ class PatchModel:
     coefficients (F, 3) float64: polynomial weights giving the normal's (y, z) components and the press
     depth in millimetres (a weak cue: the lights are closer to a deeper surface); degree: of the
     polynomial in the five inputs (three scaled colour differences, u, v); colour_scale: grey levels per
-    unit input; sigma (pixels): Gaussian smoothing of the difference image; seed_level, grow_level: the
-    hysteresis thresholds of the mask, in units of the smoothed noise's standard deviation; min_area
-    (pixels): smaller connected blobs are dropped; grid_step (pixels): the depth integration grid;
-    top_band: fraction of the deepest press that defines the contact region.
+    unit input; sigma (pixels): Gaussian smoothing of the difference image before the regression;
+    mask_sigma (pixels): the same for the mask; seed_level, grow_level: the hysteresis thresholds of the
+    mask, in units of the smoothed noise's standard deviation; erode (pixels): radius the mask is eroded
+    by; min_area (pixels): smaller connected blobs are dropped; grid_step (pixels): the depth integration
+    grid; top_band: fraction of the deepest press that defines the contact region; convex: take the
+    mask's convex hull (see the module docstring).
     """
 
     coefficients: np.ndarray
@@ -102,6 +112,7 @@ class ContactPatch:
     into the gel along the sensor's +x axis (0 outside the mask); point (3,) metres, the object's surface
     point at the contact (see the module docstring); normal (3,) unit, the object's outward surface
     normal there; noise: estimated noise standard deviation of the difference image, grey levels.
+    The mask is the region the depth is integrated over (see ``difference_to_mask``).
     """
 
     contact: bool
@@ -244,38 +255,33 @@ def _fill_holes(mask: np.ndarray) -> np.ndarray:
 # --- colour to normal ------------------------------------------------------------------------------------
 
 
+@functools.lru_cache(maxsize=8)
 def _monomial_exponents(n_inputs: int, degree: int) -> np.ndarray:
     """All exponent vectors of total degree <= degree: (F, n_inputs) int, the constant first."""
-    out = [np.zeros(n_inputs, dtype=int)]
-    for d in range(1, degree + 1):
-        def build(prefix, start, left):
-            if left == 0:
-                e = np.zeros(n_inputs, dtype=int)
-                for i in prefix:
-                    e[i] += 1
-                out.append(e)
-                return
-            for i in range(start, n_inputs):
-                build(prefix + [i], i, left - 1)
-        build([], 0, d)
-    return np.array(out)
+    out = []
+    for d in range(degree + 1):
+        for combo in itertools.combinations_with_replacement(range(n_inputs), d):
+            out.append(np.bincount(np.array(combo, dtype=int), minlength=n_inputs))
+    exps = np.array(out)
+    exps.setflags(write=False)
+    return exps
 
 
-def regression_features(smooth_values: np.ndarray, rays: np.ndarray, model_degree: int, colour_scale: float) -> np.ndarray:
-    """Smoothed D values (n, 3) and their rays (n, 3) -> polynomial features (n, F) float64.
+def regression_features(colour: np.ndarray, rays: np.ndarray, degree: int, colour_scale: float) -> np.ndarray:
+    """Smoothed D values (n, 3) grey levels and their rays (n, 3) -> polynomial features (n, F) float64.
 
-    Inputs: D / colour_scale and the ray's (u, v) scaled to about [-1, 1] (u, v times 2).
+    Inputs: D / colour_scale and the ray's (u, v) times 2 (about [-1, 1] over the image); features: all
+    their monomials of total degree <= ``degree``.
     """
-    x = np.concatenate([np.asarray(smooth_values, np.float64) / colour_scale, 2.0 * np.asarray(rays)[:, 1:3]], axis=1)
-    exps = _monomial_exponents(x.shape[1], model_degree)
-    powers = [np.ones((len(x), model_degree + 1)) for _ in range(x.shape[1])]
-    for i in range(x.shape[1]):
-        for p in range(1, model_degree + 1):
-            powers[i][:, p] = powers[i][:, p - 1] * x[:, i]
+    x = np.concatenate([np.asarray(colour, np.float64) / colour_scale, 2.0 * np.asarray(rays)[:, 1:3]], axis=1)
+    exps = _monomial_exponents(x.shape[1], degree)
+    powers = np.ones((x.shape[1], degree + 1, len(x)))
+    for p in range(1, degree + 1):
+        powers[:, p] = powers[:, p - 1] * x.T
     feats = np.ones((len(x), len(exps)))
     for k, e in enumerate(exps):
         for i in np.flatnonzero(e):
-            feats[:, k] *= powers[i][:, e[i]]
+            feats[:, k] *= powers[i, e[i]]
     return feats
 
 
