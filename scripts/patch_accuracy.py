@@ -76,52 +76,82 @@ def deepest_truth(depth: np.ndarray, normal_fn, top_band: float, max_pixels: int
     return point, normal / np.linalg.norm(normal)
 
 
-class Collector:
-    """Per-set lists of errors."""
+TOP_BAND = patch.PatchModel.__dataclass_fields__["top_band"].default
 
-    def __init__(self):
-        self.rows: dict[str, dict[str, list]] = {}
-        self.times: list[float] = []
+# Design variants measured by --ablation: PatchModel settings changed from the defaults (refitted).
+VARIANTS = {
+    "default": {},
+    "no convex hull": {"convex": False},
+    "no erosion": {"erode": 0},
+    "mask smoothing 3 px": {"mask_sigma": 3.0, "grow_level": 3.5},
+    "regression smoothing 3 px": {"sigma": 3.0},
+    "polynomial degree 4": {"degree": 4},
+}
 
-    def add(self, name: str, key: str, value: float):
-        self.rows.setdefault(name, {}).setdefault(key, []).append(value)
 
-    def estimate(self, image, no_contact, model):
+class Case:
+    """One tactile image to estimate, with its truths (sensor frame)."""
+
+    def __init__(self, name, image, no_contact, truths, true_depth=None, to_surface=None):
+        self.name, self.image, self.no_contact = name, image, no_contact
+        self.truths = truths  # {"deepest" or "axis": (point (3,), normal (3,))}
+        self.true_depth, self.to_surface = true_depth, to_surface
+
+
+def evaluate(cases: list[Case], model: patch.PatchModel) -> tuple[dict, list]:
+    """-> {set: {metric: [values]}}, per-image times (s)."""
+    rows: dict[str, dict[str, list]] = {}
+    times = []
+
+    def add(name, key, value):
+        rows.setdefault(name, {}).setdefault(key, []).append(value)
+
+    for case in cases:
         t = time.perf_counter()
-        res = patch.image_to_patch(image, no_contact, model)
-        self.times.append(time.perf_counter() - t)
-        return res
-
-    def score(self, name, res, truth_point, truth_normal, true_depth=None, truth="deepest", to_surface=None):
-        """Errors of one estimate (sensor frame) against one truth. to_surface: sensor-frame point (3,) ->
-        its distance (m) to the object's surface, for the off-surface error."""
-        if truth == "deepest" or true_depth is None:
-            self.add(name, "missed", float(not res.contact))
+        res = patch.image_to_patch(case.image, case.no_contact, model)
+        times.append(time.perf_counter() - t)
+        add(case.name, "missed", float(not res.contact))
         if not res.contact:
-            return
-        self.add(name, f"point_mm[{truth}]", 1e3 * float(np.linalg.norm(res.point - truth_point)))
-        self.add(name, f"normal_deg[{truth}]", angle_deg(res.normal, truth_normal))
-        self.add(name, f"landmark_point_mm[{truth}]", 1e3 * float(np.linalg.norm(sensor.CONTACT_POINT - truth_point)))
-        self.add(name, f"landmark_normal_deg[{truth}]", angle_deg(np.array([-1.0, 0.0, 0.0]), truth_normal))
-        if to_surface is not None:
-            self.add(name, "off_surface_mm", 1e3 * float(to_surface(res.point)))
-        if true_depth is not None and truth == "deepest":
-            m = true_depth > 0
-            self.add(name, "mask_iou", float((res.mask & m).sum() / max((res.mask | m).sum(), 1)))
-            self.add(name, "max_depth_err_mm", 1e3 * abs(float(res.depth.max() - true_depth.max())))
+            continue
+        for truth, (point, normal) in case.truths.items():
+            add(case.name, f"point_mm[{truth}]", 1e3 * float(np.linalg.norm(res.point - point)))
+            add(case.name, f"normal_deg[{truth}]", angle_deg(res.normal, normal))
+            add(case.name, f"landmark_point_mm[{truth}]", 1e3 * float(np.linalg.norm(sensor.CONTACT_POINT - point)))
+            add(case.name, f"landmark_normal_deg[{truth}]", angle_deg(np.array([-1.0, 0.0, 0.0]), normal))
+        if case.to_surface is not None:
+            add(case.name, "off_surface_mm", 1e3 * float(case.to_surface(res.point)))
+        if case.true_depth is not None:
+            m = case.true_depth > 0
+            add(case.name, "mask_iou", float((res.mask & m).sum() / max((res.mask | m).sum(), 1)))
+            add(case.name, "max_depth_err_mm", 1e3 * abs(float(res.depth.max() - case.true_depth.max())))
+    return rows, times
 
-    def report(self):
-        print(f"{'set':16s} {'metric':28s} {'n':>4s} {'median':>8s} {'p90':>8s}")
-        for name, metrics in self.rows.items():
-            for key, values in metrics.items():
-                v = np.asarray(values, dtype=float)
-                if key == "missed":
-                    print(f"{name:16s} {'no contact found':28s} {len(v):4d} {int(v.sum()):8d}")
-                    continue
-                print(f"{name:16s} {key:28s} {len(v):4d} {np.median(v):8.3f} {np.percentile(v, 90):8.3f}")
-        t = 1e3 * np.asarray(self.times)
-        print(f"time per image: median {np.median(t):.1f} ms, p90 {np.percentile(t, 90):.1f} ms over {len(t)} images "
-              "(one process, OPENBLAS_NUM_THREADS=1)")
+
+def report(rows: dict, times: list) -> None:
+    print(f"{'set':16s} {'metric':28s} {'n':>4s} {'median':>8s} {'p90':>8s}")
+    for name, metrics in rows.items():
+        for key, values in metrics.items():
+            v = np.asarray(values, dtype=float)
+            if key == "missed":
+                print(f"{name:16s} {'no contact found':28s} {len(v):4d} {int(v.sum()):8d}")
+                continue
+            print(f"{name:16s} {key:28s} {len(v):4d} {np.median(v):8.3f} {np.percentile(v, 90):8.3f}")
+    t = 1e3 * np.asarray(times)
+    print(f"time per image: median {np.median(t):.1f} ms, p90 {np.percentile(t, 90):.1f} ms over {len(t)} images "
+          "(one process, OPENBLAS_NUM_THREADS=1)")
+
+
+def report_ablation(results: dict) -> None:
+    sets = ("ycb-offaxis", "sq-offaxis")
+    print("ablation (medians / p90 on " + " and ".join(sets) + ")")
+    print(f"{'variant':28s} " + " ".join(f"{s + ' ' + m:>30s}" for s in sets for m in ("point mm", "normal deg", "IoU")))
+    for variant, rows in results.items():
+        cells = []
+        for s in sets:
+            for key in ("point_mm[deepest]", "normal_deg[deepest]", "mask_iou"):
+                v = np.asarray(rows.get(s, {}).get(key, [np.nan]))
+                cells.append(f"{np.median(v):13.3f} / {np.percentile(v, 90):6.3f}")
+        print(f"{variant:28s} " + " ".join(f"{c:>30s}" for c in cells))
 
 
 def ycb_contacts(mesh, n, rng, renderer, offaxis: bool):
@@ -149,46 +179,32 @@ def ycb_contacts(mesh, n, rng, renderer, offaxis: bool):
     return out
 
 
-def run(args):
-    data = Path(os.environ.get("TACTILE6D_DATA", "../shared/data"))
-    paper_bg = cv2.imread(str(data / "digit/caddeo2023/background.png"))
-    tacto_bg = cv2.imread(str(data / "digit/tacto/bg_digit_240_320.jpg"))
-    paper = DigitRenderer(paper_bg)
-    tacto = DigitRenderer(tacto_bg)
+def make_cases(args, data: Path) -> list[Case]:
+    """All contact sets of the module docstring, rendered, with their truths."""
+    paper = DigitRenderer(cv2.imread(str(data / "digit/caddeo2023/background.png")))
+    tacto = DigitRenderer(cv2.imread(str(data / "digit/tacto/bg_digit_240_320.jpg")))
     rng = np.random.default_rng([args.seed, 1])  # a stream apart from the calibration's
-
-    if args.model:
-        model = patch.load_model(args.model)
-        print(f"calibration: loaded {args.model}")
-    else:
-        t = time.perf_counter()
-        model = patch.calibrate(args.presses, seed=args.seed)
-        print(f"calibration: {args.presses} simulated presses, {time.perf_counter() - t:.1f} s")
-
-    col = Collector()
     nc_paper = paper.no_contact(seed=int(rng.integers(2**31)))
     nc_tacto = tacto.no_contact(seed=int(rng.integers(2**31)))
+    cases: list[Case] = []
     for obj in args.objects:
         mesh, _ = meshes.clean_mesh(meshes.load_mesh_file(data / "ycb" / obj / "textured_simple.obj"))
-        normal_fn_obj = lambda pts_obj, mesh=mesh: mesh_normals_at(mesh, pts_obj)  # noqa: E731
         for offaxis in (False, True):
             for T, p, nrm in ycb_contacts(mesh, args.per_object, rng, paper, offaxis):
                 R, t = T[:3, :3], T[:3, 3]
-                to_obj = lambda pts, R=R, t=t: pts @ R.T + t  # noqa: E731
-                normal_fn = lambda pts, R=R, to_obj=to_obj: normal_fn_obj(to_obj(pts)) @ R  # noqa: E731
+                normal_fn = lambda pts, R=R, t=t, mesh=mesh: mesh_normals_at(mesh, pts @ R.T + t) @ R  # noqa: E731
                 seed = int(rng.integers(2**31))
-                res_true = paper.render(mesh, np.eye(4), T, seed=seed)
-                tp, tn = deepest_truth(res_true.depth, normal_fn, model.top_band)
-                name = "ycb-offaxis" if offaxis else "ycb-standard"
-                est = col.estimate(res_true.image, nc_paper, model)
-                col.score(name, est, tp, tn, res_true.depth, to_surface=surface_distance_fn(mesh, T))
-                if not offaxis:
-                    p_s, n_s = (p - t) @ R, nrm @ R
-                    col.score(name, est, p_s, n_s, true_depth=res_true.depth, truth="axis")
-                    other = tacto.render(mesh, np.eye(4), T, seed=seed)
-                    est = col.estimate(other.image, nc_tacto, model)
-                    col.score("ycb-tacto-unit", est, tp, tn, other.depth)
-        print(f"  {obj} done", flush=True)
+                rendered = paper.render(mesh, np.eye(4), T, seed=seed)
+                truths = {"deepest": deepest_truth(rendered.depth, normal_fn, TOP_BAND)}
+                to_surface = surface_distance_fn(mesh, T)
+                if offaxis:
+                    cases.append(Case("ycb-offaxis", rendered.image, nc_paper, truths, rendered.depth, to_surface))
+                    continue
+                truths["axis"] = ((p - t) @ R, nrm @ R)
+                cases.append(Case("ycb-standard", rendered.image, nc_paper, truths, rendered.depth, to_surface))
+                other = tacto.render(mesh, np.eye(4), T, seed=seed)
+                cases.append(Case("ycb-tacto-unit", other.image, nc_tacto, truths, other.depth, to_surface))
+        print(f"  {obj}: contacts rendered", flush=True)
 
     presses = patch.sample_presses(args.superquadrics, rng, paper, max_tilt=np.deg2rad(20.0), max_offset=0.004,
                                    depth_range=(0.0015, 0.0020))
@@ -197,9 +213,8 @@ def run(args):
     for press, image, depth, nrm in zip(presses, images, depths, normals):
         if press.shape is not shape:
             shape, mesh = press.shape, patch.shape_to_mesh(press.shape)
-        tp, tn = patch.depth_to_contact(depth, nrm.astype(np.float64), model.top_band)
-        col.score("sq-offaxis", col.estimate(image, nc_paper, model), tp, tn, depth,
-                  to_surface=surface_distance_fn(mesh, press.T_object_sensor))
+        truths = {"deepest": patch.depth_to_contact(depth, nrm.astype(np.float64), TOP_BAND)}
+        cases.append(Case("sq-offaxis", image, nc_paper, truths, depth, surface_distance_fn(mesh, press.T_object_sensor)))
 
     validation = Path(args.validation)
     if validation.is_file():
@@ -216,14 +231,35 @@ def run(args):
                 T_sensor_world = invert_pose(scenes.T_world_sensors[s, i])
                 p = T_sensor_world[:3, :3] @ scenes.contact_points[s, i] + T_sensor_world[:3, 3]
                 n = T_sensor_world[:3, :3] @ scenes.contact_normals[s, i]
-                est = col.estimate(scenes.images[s, i], nc_paper, model)
                 T_object_sensor = invert_pose(scenes.T_world_object[s]) @ scenes.T_world_sensors[s, i]
                 to_surface = surface_distance_fn(ycb[obj], T_object_sensor) if obj in ycb else None
-                col.score("validation", est, p, n, truth="axis", to_surface=to_surface)
+                cases.append(Case("validation", scenes.images[s, i], nc_paper, {"axis": (p, n)}, None, to_surface))
         print(f"validation scenes: {len(scenes)} from {validation}")
     else:
         print(f"validation scenes: {validation} not found, skipped")
-    col.report()
+    return cases
+
+
+def run(args):
+    data = Path(os.environ.get("TACTILE6D_DATA", "../shared/data"))
+    cases = make_cases(args, data)
+    if args.ablation:
+        cal = patch.calibration_set(args.presses, seed=args.seed)
+        results = {}
+        for variant, settings in VARIANTS.items():
+            model = patch.fit_model(cal[0], cal[3], cal[2], cal[1], seed=args.seed, **settings)
+            results[variant] = evaluate(cases, model)[0]
+            print(f"  variant {variant!r} evaluated", flush=True)
+        report_ablation(results)
+        return
+    if args.model:
+        model = patch.load_model(args.model)
+        print(f"calibration: loaded {args.model}")
+    else:
+        t = time.perf_counter()
+        model = patch.calibrate(args.presses, seed=args.seed)
+        print(f"calibration: {args.presses} simulated presses, {time.perf_counter() - t:.1f} s")
+    report(*evaluate(cases, model))
 
 
 def main(argv=None):
@@ -235,6 +271,7 @@ def main(argv=None):
     parser.add_argument("--model", default=None, help="a saved calibration (patch.save_model) instead of calibrating")
     parser.add_argument("--validation", default="/work/repro/artifacts/scenes/validation.h5")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--ablation", action="store_true", help="compare the design variants (VARIANTS) instead")
     run(parser.parse_args(argv))
 
 

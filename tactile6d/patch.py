@@ -659,16 +659,24 @@ def calibration_renderer(**overrides) -> DigitRenderer:
     return DigitRenderer(grey, **overrides)
 
 
-def calibrate(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer | None = None, **settings) -> PatchModel:
-    """Calibrate from simulated presses: ``sample_presses``, ``render_presses``, ``fit_model`` -> PatchModel.
+def calibration_set(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer | None = None):
+    """Simulated presses to calibrate on -> images (n, H, W, 3) uint8, depths (n, H, W) float32 m, normals
+    (n, H, W, 3) float32 (``render_presses``), and the renderer's no-contact image (H, W, 3) uint8.
 
-    Deterministic for a given seed and renderer. renderer: defaults to ``calibration_renderer()``.
+    ``sample_presses`` with its defaults; deterministic for a given seed and renderer (default
+    ``calibration_renderer()``).
     """
     renderer = calibration_renderer() if renderer is None else renderer
     rng = np.random.default_rng(seed)
     presses = sample_presses(n_presses, rng, renderer)
     images, depths, normals = render_presses(renderer, presses, seed=int(rng.integers(2**31)))
     no_contact = renderer.no_contact(seed=int(rng.integers(2**31)))
+    return images, depths, normals, no_contact
+
+
+def calibrate(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer | None = None, **settings) -> PatchModel:
+    """Calibrate from simulated presses (``calibration_set``, then ``fit_model`` with ``settings``) -> PatchModel."""
+    images, depths, normals, no_contact = calibration_set(n_presses, seed, renderer)
     return fit_model(images, no_contact, normals, depths, seed=seed, **settings)
 
 
