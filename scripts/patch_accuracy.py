@@ -192,7 +192,7 @@ def make_cases(args, data: Path) -> list[Case]:
         for offaxis in (False, True):
             for T, p, nrm in ycb_contacts(mesh, args.per_object, rng, paper, offaxis):
                 R, t = T[:3, :3], T[:3, 3]
-                normal_fn = lambda pts, R=R, t=t, mesh=mesh: mesh_normals_at(mesh, pts @ R.T + t) @ R  # noqa: E731
+                normal_fn = lambda pts, R=R, t=t, mesh=mesh: mesh_normals_at(mesh, pts @ R.T + t) @ R
                 seed = int(rng.integers(2**31))
                 rendered = paper.render(mesh, np.eye(4), T, seed=seed)
                 truths = {"deepest": deepest_truth(rendered.depth, normal_fn, TOP_BAND)}

@@ -56,8 +56,18 @@ import scipy.sparse.linalg
 from tactile6d import sensor
 from tactile6d import superquadrics as sq
 from tactile6d.errors import DataError, InputError
-from tactile6d.geometry import axis_angle_to_rotmat, invert_pose, make_pose, orthonormal_frame
-from tactile6d.render import CAMERA_POSITION, DigitRenderer, gel_surface, mesh_arrays, pixel_rays
+from tactile6d.geometry import (
+    axis_angle_to_rotmat,
+    invert_pose,
+    make_pose,
+)
+from tactile6d.render import (
+    CAMERA_POSITION,
+    DigitRenderer,
+    gel_surface,
+    mesh_arrays,
+    pixel_rays,
+)
 
 H, W = sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH
 IMAGE_SHAPE = (H, W, 3)
@@ -168,12 +178,13 @@ def check_image(image, name: str = "image") -> np.ndarray:
 def images_to_difference(image, no_contact) -> np.ndarray:
     """image, no_contact: (320, 240, 3) uint8 RGB of the same sensor -> D (320, 240, 3) float32 grey levels.
 
-    Raises InputError for a wrong shape or dtype, or when more than half of the image is saturated
-    (0 or 255 in some channel), which leaves no shading to read.
+    Raises InputError for a wrong shape or dtype, or when more than half of the image's pixels are
+    saturated (0 or 255 in a channel where the no-contact image is not), which leaves no shading to read.
     """
     img = check_image(image, "image")
     bg = check_image(no_contact, "no-contact image")
-    saturated = np.mean(np.any((img == 0) | (img == 255), axis=-1))
+    clipped = ((img == 0) & (bg != 0)) | ((img == 255) & (bg != 255))
+    saturated = np.mean(np.any(clipped, axis=-1))
     if saturated > _MAX_SATURATED_FRACTION:
         raise InputError(f"{saturated:.0%} of the tactile image's pixels are saturated (0 or 255): no contact shading to read")
     return img.astype(np.float32) - bg.astype(np.float32)
@@ -214,10 +225,10 @@ def difference_to_mask(smooth: np.ndarray, noise: float, model: PatchModel) -> n
     s = max(smoothed_noise(noise, model.mask_sigma), 0.05)
     magnitude = np.sqrt(np.sum(smooth.astype(np.float64) ** 2, axis=-1))
     low = (magnitude > model.grow_level * s).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(low, connectivity=8)
-    if n <= 1:
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(low, connectivity=8)
+    if count <= 1:
         return np.zeros(magnitude.shape, dtype=bool)
-    peak = np.zeros(n)
+    peak = np.zeros(count)
     np.maximum.at(peak, labels.ravel(), magnitude.ravel())
     keep = (peak > model.seed_level * s) & (stats[:, cv2.CC_STAT_AREA] >= model.min_area)
     keep[0] = False
@@ -246,7 +257,7 @@ def _convex_hull(mask: np.ndarray) -> np.ndarray:
 
 def _fill_holes(mask: np.ndarray) -> np.ndarray:
     """Fill the background components that do not touch the image border."""
-    n, labels = cv2.connectedComponents((~mask).astype(np.uint8), connectivity=4)
+    _, labels = cv2.connectedComponents((~mask).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     outside = np.isin(labels, border) & ~mask
     return ~outside
@@ -706,9 +717,10 @@ def load_model(path) -> PatchModel:
             if "format" not in z or str(z["format"]) != _MODEL_FORMAT:
                 raise DataError(f"{path}: not a contact-patch calibration ({_MODEL_FORMAT})")
             kwargs = {}
-            for name, f in PatchModel.__dataclass_fields__.items():
-                v = z[name]
-                kwargs[name] = np.array(v, dtype=np.float64) if name == "coefficients" else type(PatchModel.__dataclass_fields__[name].default)(v)
+            for name, spec in PatchModel.__dataclass_fields__.items():
+                value = z[name]
+                # scalar settings come back as 0-d arrays: cast them to the field's own type
+                kwargs[name] = np.array(value, dtype=np.float64) if name == "coefficients" else type(spec.default)(value)
             return PatchModel(**kwargs)
     except (OSError, ValueError, KeyError) as exc:
         raise DataError(f"{path}: cannot read a contact-patch calibration ({exc})") from exc
