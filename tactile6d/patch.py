@@ -543,7 +543,7 @@ def sample_presses(
     size_range=(0.005, 0.08),
     exponent_range=(0.1, 1.5),
     depth_range=(0.0005, 0.0025),
-    max_tilt: float = np.deg2rad(25.0),
+    max_tilt: float = float(np.deg2rad(25.0)),
     max_offset: float = 0.005,
 ) -> list[CalibrationPress]:
     """n random presses on random superquadrics, off-centre and tilted, grouped by shape.
