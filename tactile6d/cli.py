@@ -17,7 +17,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("fidelity",): ("fidelity", "compare the simulator with the paper's 120 TACTO images (IoU, correlation, montage)"),
     ("bench", "render"): ("bench_render", "images per second of the DIGIT simulator"),
     ("bench", "estimate"): ("bench_estimate", "seconds per estimate (default, baseline, faithful) and peak memory"),
-    ("estimate",): ("estimate", "estimate an object's pose from a scene folder in the paper's triplet layout"),
+    ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
 }
 
 

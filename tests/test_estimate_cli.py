@@ -2,6 +2,9 @@
 scene set, with artifacts made by the real stages for a primitive; the two must agree."""
 
 import json
+import shutil
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -210,3 +213,130 @@ def test_an_empty_scene_set_goes_through(artifacts):
         assert stage.main(argv) == 0
     ranked = read_artifact(layout.run_dir(artifacts, "empty", "baseline") / "ranked.h5", "ranked")
     assert ranked["poses"].shape == (0, 5, 4, 4)
+
+
+# --- several scenes in one call ---------------------------------------------------------------------
+
+BASELINE = ["select.method=baseline", "select.N=400"]
+
+
+def copy_scene(scene, folder):
+    """A copy of the scene folder at ``folder`` (parents made)."""
+    shutil.copytree(scene, folder)
+    return folder
+
+
+def zero_axis_scene(scene, folder):
+    """The scene with its last sensor's pose line turned into axis 0 0 0 with angle 1 rad."""
+    copy_scene(scene, folder)
+    lines = (folder / "poses_sensors.txt").read_text().splitlines()
+    lines[-1] = " ".join(lines[-1].split()[:3] + ["0", "0", "0", "1.0"])
+    (folder / "poses_sensors.txt").write_text("\n".join(lines) + "\n")
+    return folder
+
+
+def test_several_scenes_in_one_call_load_the_artifacts_once(capsys, artifacts, scene, tmp_path, monkeypatch):
+    from tactile6d.commands import estimate as command
+
+    loads = []
+    original = command.Estimator.from_artifacts
+    monkeypatch.setattr(command.Estimator, "from_artifacts",
+                        lambda *a, **k: loads.append(a[0]) or original(*a, **k))
+    folders = [copy_scene(scene, tmp_path / name) for name in ("a", "b", "c")]
+    # the overrides come after the folders: they are told apart by their key=value form
+    code, out, err = run(capsys, "--object", "prim_box", "--artifacts", str(artifacts), "--json",
+                         "--scene", *map(str, folders), *BASELINE)
+    assert code == 0, err
+    results = [json.loads(line) for line in out.splitlines()]
+    assert [r["scene"] for r in results] == [str(f) for f in folders]
+    assert loads == ["prim_box"]
+    assert results[0]["load_seconds"] > 0 and results[1]["load_seconds"] == results[2]["load_seconds"] == 0
+    # the same sensors and images give the same estimate
+    assert results[0]["poses"] == results[1]["poses"] == results[2]["poses"]
+    assert all(r["method"] == "baseline" for r in results)
+
+
+def test_text_output_heads_each_result_with_its_scene(capsys, artifacts, scene, tmp_path):
+    folders = [copy_scene(scene, tmp_path / name) for name in ("a", "b")]
+    code, out, err = run(capsys, "--object", "prim_box", "--artifacts", str(artifacts),
+                         "--scene", *map(str, folders), *BASELINE)
+    assert code == 0, err
+    blocks = out.split("\n\n")
+    assert len(blocks) == 2
+    for folder, block in zip(folders, blocks):
+        lines = block.splitlines()
+        assert lines[0] == f"# {folder} (prim_box)"
+        assert g.is_rotation(g.line_to_pose(lines[1])[:3, :3])
+        assert lines[2].startswith("method baseline")
+
+
+def test_a_scenes_root_with_object_auto(capsys, artifacts, scene, tmp_path, monkeypatch):
+    """Every folder with a poses_sensors.txt under the root, in natural order; the object is the name of
+    the folder holding each scene; the progress bar goes to stderr only."""
+    root = tmp_path / "triplets"
+    for name in ("triplet_10", "triplet_2", "triplet_1", "triplet_3"):
+        copy_scene(scene, root / "prim_box" / name)
+    (root / "prim_box" / "notes").mkdir()  # no poses_sensors.txt: not a scene
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # tqdm draws its bar on terminals only
+    code, out, err = run(capsys, "--object", "auto", "--scenes-root", str(root), "--artifacts", str(artifacts),
+                         "--json", *BASELINE)
+    assert code == 0, err
+    results = [json.loads(line) for line in out.splitlines()]
+    assert [Path(r["scene"]).name for r in results] == ["triplet_1", "triplet_2", "triplet_3", "triplet_10"]
+    assert {r["object"] for r in results} == {"prim_box"}
+    assert "4/4" in err and "scene" in err
+
+
+def test_a_bad_scene_among_good_ones(capsys, artifacts, scene, tmp_path):
+    """The good scenes print, each bad one prints one error line naming its folder, exit status 1."""
+    root = tmp_path / "triplets"
+    good = [copy_scene(scene, root / "prim_box" / name) for name in ("triplet_1", "triplet_4")]
+    no_image = copy_scene(scene, root / "prim_box" / "triplet_2")
+    (no_image / "Image_heatmap_1.png").unlink()
+    zero_axis = zero_axis_scene(scene, root / "prim_box" / "triplet_3")
+    unknown = copy_scene(scene, root / "nope" / "triplet_1")
+    code, out, err = run(capsys, "--object", "auto", "--scenes-root", str(root), "--artifacts", str(artifacts),
+                         *BASELINE)
+    assert code == 1
+    assert [line for line in out.splitlines() if line.startswith("# ")] == [
+        f"# {folder} (prim_box)" for folder in good]
+    errors = err.splitlines()
+    assert len(errors) == 4 and all(line.startswith("error: ") for line in errors)
+    assert str(unknown) in errors[0] and "'nope' is not a known object" in errors[0] and "prim_box" in errors[0]
+    assert str(no_image) in errors[1] and "Image_heatmap_1.png missing" in errors[1]
+    assert str(zero_axis) in errors[2] and "zero rotation axis with a non-zero angle" in errors[2]
+    assert errors[3] == "error: 3 of 5 scenes failed"
+
+
+def test_a_zero_axis_with_an_angle_is_a_clear_error(capsys, artifacts, scene, tmp_path):
+    folder = zero_axis_scene(scene, tmp_path / "zero")
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
+                         *BASELINE)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err.startswith(f"error: {folder / 'poses_sensors.txt'}: zero rotation axis with a non-zero angle")
+
+
+@pytest.mark.parametrize("n_scenes", [1, 2])
+def test_an_unknown_object_lists_the_known_ones(capsys, artifacts, scene, n_scenes):
+    code, out, err = run(capsys, "--object", "nope", "--scene", *[str(scene)] * n_scenes,
+                         "--artifacts", str(artifacts))
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err.startswith("error: unknown object 'nope'; objects with artifacts in")
+    assert "prim_box" in err and "004_sugar_box" in err  # one with artifacts, one of the configured set
+    assert "nope.h5" not in err
+
+
+def test_a_known_object_without_artifacts_stops_a_batch(capsys, artifacts, scene, tmp_path):
+    folders = [copy_scene(scene, tmp_path / name) for name in ("a", "b")]
+    code, out, err = run(capsys, "--object", "prim_sphere", "--scene", *map(str, folders),
+                         "--artifacts", str(artifacts), *BASELINE)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "dvc repro sample_surface@prim_sphere" in err
+
+
+@pytest.mark.parametrize("word,override", [("select.N=5", True), ("preset=paper", True), ("+rank.x=1", True),
+                                           ("data/triplet=1", False), ("triplet_1", False)])
+def test_overrides_are_told_apart_from_scene_folders(word, override):
+    from tactile6d.commands.estimate import is_override
+
+    assert is_override(word) == override
