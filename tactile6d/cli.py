@@ -17,6 +17,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("fidelity",): ("fidelity", "compare the simulator with the paper's 120 TACTO images (IoU, correlation, montage)"),
     ("bench", "render"): ("bench_render", "images per second of the DIGIT simulator"),
     ("bench", "estimate"): ("bench_estimate", "seconds per estimate (default, baseline, faithful) and peak memory"),
+    ("bench", "batch"): ("bench_batch", "start-up and per-scene seconds of one `estimate` call on the paper's triplets"),
     ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
 }
 

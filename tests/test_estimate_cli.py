@@ -340,3 +340,15 @@ def test_overrides_are_told_apart_from_scene_folders(word, override):
     from tactile6d.commands.estimate import is_override
 
     assert is_override(word) == override
+
+
+def test_bench_batch_figures_from_arrival_times():
+    """The start-up excludes the first scene's own estimate; the per-scene time is the mean gap after it."""
+    from tactile6d.commands.bench_batch import timings
+
+    results = [{"seconds": {"total": 1.0}, "load_seconds": 0.5}, {"seconds": {"total": 0.2}, "load_seconds": 0.0},
+               {"seconds": {"total": 0.4}, "load_seconds": 0.3}]
+    out = timings([4.0, 4.3, 5.0], results)
+    assert out["startup_s"] == pytest.approx(3.0) and out["first_load_s"] == 0.5
+    assert out["per_scene_s"] == pytest.approx(0.5) and out["estimate_median_s"] == pytest.approx(0.3)
+    assert out["later_loads"] == 1 and out["later_load_median_s"] == 0.3
