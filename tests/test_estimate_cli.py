@@ -335,6 +335,7 @@ def test_a_known_object_without_artifacts_stops_a_batch(capsys, artifacts, scene
 
 
 @pytest.mark.parametrize("word,override", [("select.N=5", True), ("preset=paper", True), ("+rank.x=1", True),
+                                           ("~rank.x", True),
                                            ("data/triplet=1", False), ("triplet_1", False)])
 def test_overrides_are_told_apart_from_scene_folders(word, override):
     from tactile6d.commands.estimate import is_override

@@ -90,7 +90,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def is_override(word: str) -> bool:
     """Whether a command-line word is a config override rather than a scene folder."""
-    return bool(_OVERRIDE.match(word)) and "=" in word and not Path(word).exists()
+    # ``~key`` (delete a key) is the one override form without '='.
+    looks_like_one = bool(_OVERRIDE.match(word)) and ("=" in word or word.startswith("~"))
+    return looks_like_one and not Path(word).exists()
 
 
 def natural_key(path: Path) -> list:
