@@ -272,11 +272,11 @@ def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: Estimato
     from tqdm import tqdm
 
     show_bar = not args.no_progress and len(scenes) >= PROGRESS_MIN_SCENES
-    failed = 0
+    failed = printed = 0
     # disable=None: tqdm draws the bar only when stderr is a terminal, so logs stay free of it.
     with tqdm(total=len(scenes), file=sys.stderr, unit="scene", desc="estimate",
               disable=None if show_bar else True, leave=False) as bar:
-        for i, scene in enumerate(scenes):
+        for scene in scenes:
             try:
                 name = object_of(scene, args.object, known)
                 result, load_seconds = estimate_scene(scene, name, cache)
@@ -289,8 +289,10 @@ def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: Estimato
                 if args.json:
                     write(as_json(scene, name, result, cfg, load_seconds), sys.stdout)
                 else:
-                    write(("\n" if i else "") + as_text(scene, name, result, cfg, load_seconds, header=True),
+                    # a blank line between results
+                    write(("\n" if printed else "") + as_text(scene, name, result, cfg, load_seconds, header=True),
                           sys.stdout)
+                printed += 1
             bar.update(1)
     if failed:
         write(f"error: {failed} of {len(scenes)} scenes failed", sys.stderr)
