@@ -10,7 +10,7 @@ Contact sets (all rendered by tactile6d.render.DigitRenderer with its default se
   tilted (sensor axis up to 20 deg from the normal, random axis), deepest press 1.5-2.0 mm.
 - ``sq-offaxis``: random superquadrics (spheres, ellipsoids, boxes, edges, corners), same off-centre and
   tilted placement.
-- ``validation``: the pipeline's validation scenes (artifacts/scenes/validation.h5), when present.
+- ``validation``, ``offaxis``: the pipeline's generated scene sets (``--scenes``), when present.
 
 Two ground truths: ``axis`` = the surface point the sensor axis was placed on and its face normal (the
 scene convention; only for square placements), ``deepest`` = tactile6d.patch's own definition applied to
@@ -216,12 +216,14 @@ def make_cases(args, data: Path) -> list[Case]:
         truths = {"deepest": patch.depth_to_contact(depth, nrm.astype(np.float64), TOP_BAND)}
         cases.append(Case("sq-offaxis", image, nc_paper, truths, depth, surface_distance_fn(mesh, press.T_object_sensor)))
 
-    validation = Path(args.validation)
-    if validation.is_file():
+    for path in map(Path, args.scenes):
+        if not path.is_file():
+            print(f"scene set {path} not found, skipped")
+            continue
         from tactile6d.io import read_artifact
         from tactile6d.scenes import scene_set_from_artifact
 
-        scenes = scene_set_from_artifact(read_artifact(validation, "scenes"))
+        scenes = scene_set_from_artifact(read_artifact(path, "scenes"))
         ycb = {}
         for s in range(len(scenes)):
             obj = str(scenes.objects[s])
@@ -233,10 +235,8 @@ def make_cases(args, data: Path) -> list[Case]:
                 n = T_sensor_world[:3, :3] @ scenes.contact_normals[s, i]
                 T_object_sensor = invert_pose(scenes.T_world_object[s]) @ scenes.T_world_sensors[s, i]
                 to_surface = surface_distance_fn(ycb[obj], T_object_sensor) if obj in ycb else None
-                cases.append(Case("validation", scenes.images[s, i], nc_paper, {"axis": (p, n)}, None, to_surface))
-        print(f"validation scenes: {len(scenes)} from {validation}")
-    else:
-        print(f"validation scenes: {validation} not found, skipped")
+                cases.append(Case(path.stem, scenes.images[s, i], nc_paper, {"axis": (p, n)}, None, to_surface))
+        print(f"scene set {path.stem}: {len(scenes)} scenes from {path}")
     return cases
 
 
@@ -269,7 +269,8 @@ def main(argv=None):
     parser.add_argument("--superquadrics", type=int, default=60, help="off-centre, tilted superquadric presses")
     parser.add_argument("--presses", type=int, default=60, help="calibration presses (patch.calibrate)")
     parser.add_argument("--model", default=None, help="a saved calibration (patch.save_model) instead of calibrating")
-    parser.add_argument("--validation", default="/work/repro/artifacts/scenes/validation.h5")
+    parser.add_argument("--scenes", nargs="*", default=["artifacts/scenes/validation.h5", "artifacts/scenes/offaxis.h5"],
+                        help="scene sets of the pipeline to measure on (their true contact point and normal)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ablation", action="store_true", help="compare the design variants (VARIANTS) instead")
     run(parser.parse_args(argv))
