@@ -1,6 +1,6 @@
 """Score the online estimator on a scene set under config overrides (accuracy experiments; tune on validation only).
 
-    python scripts/eval_accuracy.py --artifacts /work/main/artifacts --scenes validation --method ours \
+    python scripts/eval_accuracy.py --artifacts artifacts --scenes validation --method ours \
         select.delta_d_rule=best_n rank.refine=true
 
 prints one JSON line: the scene set, method, overrides, the average over objects of the evaluation's

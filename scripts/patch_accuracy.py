@@ -18,7 +18,7 @@ the renderer's true press depth (the band-weighted mean surface point of the dee
 object's true normals there. ``landmark`` rows are the old assumption (contact at
 sensor.CONTACT_POINT, normal along -x) measured against the same truth.
 
-Run: TACTILE6D_DATA=/work/shared/data OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/patch_accuracy.py
+Run: TACTILE6D_DATA=../shared/data OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/patch_accuracy.py
 """
 
 from __future__ import annotations
