@@ -24,7 +24,7 @@ import trimesh
 
 from tactile6d import gel_contact
 from tactile6d.errors import InputError
-from tactile6d.render import MeshArrays, _RayCaster
+from tactile6d.render import MeshArrays
 
 TERMS = ("iou", "depth_residual", "free_space_area", "free_space_depth")
 
@@ -109,7 +109,6 @@ def poses_to_agreement(
     observed_depth: np.ndarray,
     step: int,
     free_margin: float = 0.0,
-    caster: _RayCaster | None = None,
 ) -> dict[str, np.ndarray]:
     """Render-and-compare P hypotheses T_world_object (P, 4, 4) against the observed patches.
 
@@ -118,6 +117,6 @@ def poses_to_agreement(
     free_margin: see ``depths_to_agreement``.
     -> the (P, L) terms of ``depths_to_agreement`` plus ``predicted_depth`` (P, L, h, w) float32 m.
     """
-    predicted = gel_contact.poses_to_gel_depths(mesh, T_world_object, T_world_sensors, step, caster)
+    predicted = gel_contact.poses_to_gel_depths(mesh, T_world_object, T_world_sensors, step)
     terms = depths_to_agreement(observed_mask, observed_depth, predicted, free_margin)
     return {**terms, "predicted_depth": predicted}

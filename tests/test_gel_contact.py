@@ -5,7 +5,13 @@ import trimesh
 from tactile6d import agreement, gel_contact, optimize, sensor
 from tactile6d.geometry import invert_pose, make_pose, rotvec_to_rotmat
 from tactile6d.meshes import make_primitive
-from tactile6d.render import DigitRenderer, mesh_arrays
+from tactile6d.render import (
+    CAMERA_POSITION,
+    DigitRenderer,
+    gel_surface,
+    mesh_arrays,
+    pixel_rays,
+)
 from tactile6d.sensor import sensor_poses_touching
 
 T_GT = make_pose(rotvec_to_rotmat([0.2, -0.1, 0.3]), [0.1, 0.0, 0.2])
@@ -57,10 +63,11 @@ def test_depth_on_a_flat_face_is_the_gel_minus_the_plane():
     press = 0.0015
     T_sensor = sensor_poses_touching(np.array([0.0, 0.0, 0.025]), np.array([0, 0, 1.0]), 0.0, press)
     depth = gel_contact.poses_to_gel_depths(mesh, np.eye(4), T_sensor[None], step=8)[0, 0]
-    grid = gel_contact.gel_grid(8)
+    gel_points, _ = gel_surface(pixel_rays(sensor.IMAGE_WIDTH, sensor.IMAGE_HEIGHT, 8))
+    gel_t = gel_points[..., 0] - CAMERA_POSITION[0]  # camera-axis distance of the gel along each ray
     plane_x = sensor.GEL_CENTER[0] - press
     # the ray (1, u, v) from the camera meets the plane at camera-axis distance plane_x
-    expected = np.maximum(grid.gel_t - plane_x, 0.0).reshape(grid.shape)
+    expected = np.maximum(gel_t - plane_x, 0.0)
     np.testing.assert_allclose(depth, expected, atol=1e-6)
     assert depth.max() == pytest.approx(press, abs=1e-5)  # the rays nearest the apex
     assert 0 < (depth > 0).mean() < 1  # a pressed disc, not the whole gel
@@ -123,7 +130,7 @@ def test_no_estimates_and_bad_steps(box):
     result = gel_contact.image_consistency(box, np.zeros((0, 4, 4)), T_GT, box_sensors(T_GT), step=4, iou_min=0.5)
     assert result["consistent"].shape == (0,) and result["iou"].shape == (0, 3)
     with pytest.raises(Exception, match="must divide"):
-        gel_contact.gel_grid(7)
+        gel_contact.poses_to_gel_depths(box, T_GT, box_sensors(T_GT), step=7)
 
 
 # --- render-and-compare (tactile6d.agreement) -----------------------------------------------------------
