@@ -1,7 +1,7 @@
 """Stage optimize: pose hypotheses for every scene's tuples (the paper's optimisation step).
 
-Reads ``artifacts/runs/<set>/<method>/tuples.h5``, each scene object's ``surfaces/<obj>.h5``, and config
-section ``optimize``. Writes ``hypotheses.h5`` beside it: per scene the hypotheses stacked with offsets,
+Reads ``artifacts/runs/<set>/<method>/tuples.h5`` (tuples and the sensors' contacts), each scene object's
+``surfaces/<obj>.h5``, and config section ``optimize``. Writes ``hypotheses.h5`` beside it: per scene the hypotheses stacked with offsets,
 each stored compactly as float32 translation (m) and rotation vector (rad), its loss (m, float32) and the
 index of its tuple within the scene; plus the seconds spent optimising each scene.
 """
@@ -21,10 +21,13 @@ from tactile6d.io import read_artifact, write_artifact
 from tactile6d.object_artifacts import load_surface_normals, load_surface_points
 from tactile6d.optimize import use_cpu_devices
 from tactile6d.run_artifacts import (
+    CONTACT_FIELDS,
+    PATCH_FIELDS,
     carried,
     compact_hypotheses,
     median_or_nan,
     parse_run_stage_args,
+    scene_contacts,
     scene_rows,
     stack_ragged,
 )
@@ -55,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
             tuple_index.append(np.zeros(0))
             continue
         t0 = time.perf_counter()
-        hypotheses = optimize(points_of[objects[s]], selected["T_world_sensors"][s], tuples, settings,
+        hypotheses = optimize(points_of[objects[s]], scene_contacts(selected, s), tuples, settings,
                               normals_of[objects[s]])
         seconds[s] = time.perf_counter() - t0
         poses.append(hypotheses.poses)
@@ -69,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
         run / "hypotheses.h5",
         "hypotheses",
         {
-            **carried(selected, ("names", "objects", "T_world_sensors", "failure", "seconds_encode", "seconds_select")),
+            **carried(selected, ("names", "objects", "T_world_sensors", "failure", "seconds_encode", "seconds_select")
+                      + CONTACT_FIELDS + PATCH_FIELDS),
             **compact_hypotheses(all_poses, stack_ragged(losses, (), np.float64)[0]),
             "tuple_index": stack_ragged(tuple_index, (), np.int32)[0],
             "offsets": offsets,

@@ -1,7 +1,7 @@
 """Stage rank: the top-k distinct poses of every scene by loss + deepest sensor penetration (the paper's collision-aware ranking).
 
-Reads ``artifacts/runs/<set>/<method>/hypotheses.h5``, each scene object's ``objects/<obj>.h5`` (collision
-pieces), and config section ``rank``. Writes ``ranked.h5`` beside it: per scene the top-k poses (S, K, 4, 4)
+Reads ``artifacts/runs/<set>/<method>/hypotheses.h5`` (with the sensors' contacts), each scene object's
+``objects/<obj>.h5`` (collision pieces and, for the re-scoring, the mesh), and config section ``rank``. Writes ``ranked.h5`` beside it: per scene the top-k poses (S, K, 4, 4)
 with their scores, losses and penetrations (rows past ``n_poses`` are NaN), and the seconds of every step
 (encode, select, optimize, rank), so that the evaluation reads one file.
 """
@@ -17,16 +17,19 @@ from tqdm import tqdm
 from tactile6d import layout
 from tactile6d.collision import PenetrationModel
 from tactile6d.config import section_to_dict
+from tactile6d.contact import sample_surface
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.run_artifacts import (
+    CONTACT_FIELDS,
     carried,
     expand_hypotheses,
     median_or_nan,
     parse_run_stage_args,
+    scene_contacts,
 )
 from tactile6d.settings import RankSettings
-from tactile6d.steps.rank import load_pieces, load_refine_surface, rank
+from tactile6d.steps.rank import load_mesh, load_pieces, rank
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,8 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     hyp = read_artifact(run / "hypotheses.h5", "hypotheses")
     names, objects, T_world_sensors = hyp["names"], hyp["objects"], hyp["T_world_sensors"]
     models = {name: PenetrationModel(load_pieces(artifacts, name)) for name in sorted(set(objects))}
-    surfaces = {name: load_refine_surface(artifacts, name) if settings.refine else None
-                for name in sorted(set(objects))}
+    meshes = {name: load_mesh(artifacts, name) if settings.rescores else None for name in sorted(set(objects))}
+    surfaces = {name: sample_surface(mesh) if settings.refine else None for name, mesh in meshes.items()}
 
     n_scenes, n_sensors, k = len(names), T_world_sensors.shape[1], int(settings.top_k)
     poses = np.full((n_scenes, k, 4, 4), np.nan)
@@ -52,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         candidates, losses_in = expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows], hyp["losses"][rows])
         t0 = time.perf_counter()
-        ranked = rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings, surfaces[objects[s]])
+        ranked = rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings, surfaces[objects[s]],
+                      scene_contacts(hyp, s), meshes[objects[s]])
         seconds[s] = time.perf_counter() - t0
         n = n_poses[s] = len(ranked.poses)
         poses[s, :n], scores[s, :n], losses[s, :n], penetrations[s, :n] = (
@@ -65,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         "ranked",
         {
             **carried(hyp, ("names", "objects", "T_world_sensors", "failure", "seconds_encode", "seconds_select",
-                             "seconds_optimize")),
+                             "seconds_optimize") + CONTACT_FIELDS),
             "poses": poses, "scores": scores, "losses": losses, "penetrations": penetrations,
             "n_poses": n_poses, "seconds_rank": seconds,
         },

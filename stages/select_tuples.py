@@ -1,11 +1,12 @@
 """Stage select_tuples: candidate tuples of database points for every scene of a scene set (tactile and distance selection; the baseline skips the tactile part).
 
 Reads ``artifacts/scenes/<set>.h5``, each scene object's ``surfaces/<obj>.h5`` and, for method ``ours``,
-its ``latents/<obj>.h5``, the autoencoder checkpoint and the no-contact background (``render.background``);
-config section ``select``. Writes ``artifacts/runs/<set>/<method>/tuples.h5``: per scene the tuples and
-their distance errors (stacked, with offsets), the selection diagnostics, the sensor poses (so the
-later stages need not read the scenes again), seconds spent encoding and selecting, and why a scene
-failed ('' when it did not).
+its ``latents/<obj>.h5``, the autoencoder checkpoint, the no-contact background (``render.background``)
+and, for ``select.contacts=patch``, the patch calibration (``artifacts/patch/model.npz``); config section
+``select``. Writes ``artifacts/runs/<set>/<method>/tuples.h5``: per scene the tuples and their distance
+errors (stacked, with offsets), the selection diagnostics, the sensor poses and the sensors' contacts
+(so the later stages need not read the scenes again), seconds spent encoding and selecting, and why a
+scene failed ('' when it did not).
 """
 
 from __future__ import annotations
@@ -23,13 +24,20 @@ from tactile6d.errors import NoMatch, exit_on_error
 from tactile6d.inputs import check_images, check_sensor_poses
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.object_artifacts import load_surface_normals, load_surface_points
-from tactile6d.run_artifacts import median_or_nan, parse_run_stage_args, stack_ragged
+from tactile6d.run_artifacts import (
+    median_or_nan,
+    parse_run_stage_args,
+    stack_contacts,
+    stack_ragged,
+)
 from tactile6d.scenes import scene_set_from_artifact
 from tactile6d.settings import SelectSettings
 from tactile6d.steps.encode import (
     LatentAngleEncoder,
     load_background,
     load_database_angles,
+    load_patch_model,
+    read_contacts,
 )
 from tactile6d.steps.select import select
 
@@ -67,8 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes"))
     n_scenes, n_sensors = scenes.T_world_sensors.shape[:2]
     database = Database(cfg, settings.method == "ours", settings.uses_normals)
+    patch_model = load_patch_model(artifacts) if settings.reads_patches else None
+    no_contact = database.background if settings.reads_patches else None
 
-    tuples, errors = [], []
+    tuples, errors, contacts = [], [], []
     angles = np.full((n_scenes, n_sensors), np.nan)
     omega_sizes = np.zeros((n_scenes, n_sensors), dtype=np.int64)
     delta_h = np.full((n_scenes, n_sensors), np.nan)
@@ -81,12 +91,14 @@ def main(argv: list[str] | None = None) -> int:
         points, db_angles, encoder, normals = database[str(scenes.objects[s])]
         T = check_sensor_poses(scenes.T_world_sensors[s])
         t0 = time.perf_counter()
+        images = check_images(scenes.images[s], n_sensors) if encoder is not None else None
         if encoder is not None:
-            angles[s] = encoder(check_images(scenes.images[s], n_sensors))
+            angles[s] = encoder(images)
+        contacts.append(read_contacts(settings, T, images, no_contact, patch_model))
         t1 = time.perf_counter()
         seconds[s, 0] = t1 - t0
         try:
-            chosen = select(points, db_angles, T, angles[s], settings, normals)
+            chosen = select(points, db_angles, contacts[s], angles[s], settings, normals)
         except NoMatch as exc:
             # A scene that matches nothing is a failed estimate, not a failed pipeline; bad input stops it.
             failure[s] = str(exc)
@@ -113,10 +125,11 @@ def main(argv: list[str] | None = None) -> int:
             "tuples": stacked, "errors": stacked_errors, "offsets": offsets, "angles": angles,
             "omega_sizes": omega_sizes, "delta_h": delta_h, "widened": widened, "delta_d": delta_d,
             "capped": capped, "seconds_encode": seconds[:, 0], "seconds_select": seconds[:, 1],
-            "failure": np.asarray(failure, dtype=str),
+            "failure": np.asarray(failure, dtype=str), **stack_contacts(contacts, n_sensors),
         },
         attrs={"scene_set": args.scene_set, "method": args.method},
         config={"select": section_to_dict(cfg, "select"), "render": {"background": cfg.render.background}},
+        compression="lzf",
     )
     return 0
 

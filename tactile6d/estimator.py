@@ -23,9 +23,11 @@ from tactile6d import collision, layout, ranking
 from tactile6d import optimize as optimization
 from tactile6d.config import compose_config
 from tactile6d.contact import sample_surface
+from tactile6d.contacts import Contacts
 from tactile6d.errors import InputError
 from tactile6d.inputs import check_images, check_sensor_poses
 from tactile6d.object_artifacts import load_surface_normals, load_surface_points
+from tactile6d.patch import PatchModel
 from tactile6d.run_artifacts import compact_hypotheses, expand_hypotheses
 from tactile6d.settings import Settings, needs_normals
 from tactile6d.steps import encode as encode_step
@@ -43,6 +45,7 @@ class Estimate:
 
     poses (K, 4, 4) ``T_world_object``; scores (K,) loss + deepest penetration (m); losses (K,) m;
     penetrations (K, L) m; angles (L,) the images' latent angles (rad; None for the baseline);
+    contacts: the sensors' contact points and normals the estimate used (``tactile6d.contacts``);
     selection: the selection diagnostics; n_hypotheses: poses ranked; seconds: wall-clock time per step
     (encode, select, optimize, rank) and in total.
     """
@@ -52,6 +55,7 @@ class Estimate:
     losses: np.ndarray
     penetrations: np.ndarray
     angles: np.ndarray | None
+    contacts: Contacts
     selection: Selection
     n_hypotheses: int
     seconds: dict[str, float] = field(default_factory=dict)
@@ -70,6 +74,11 @@ class Estimate:
             "losses": self.losses.tolist(),
             "penetrations": self.penetrations.tolist(),
             "seconds": dict(self.seconds),
+            "contacts": {
+                "points": self.contacts.points.tolist(),
+                "normals": self.contacts.normals.tolist(),
+                "from_patch": self.contacts.from_patch.tolist(),
+            },
             "selection": {
                 "angles": None if self.angles is None else self.angles.tolist(),
                 "omega_sizes": sel.omega_sizes.tolist(),
@@ -92,7 +101,10 @@ class Estimator:
     both needed by method 'ours' only; settings: the select/optimize/rank config (``Settings``), by
     default conf/'s; normals (M, 3) the database points' outward normals, needed by
     ``select.normal_tol_deg`` and ``optimize.normal_weight``; surface: the object's surface samples
-    (``contact.SurfaceSamples``, or a ``trimesh.Trimesh`` to sample), needed by ``rank.refine``.
+    (``contact.SurfaceSamples``, or a ``trimesh.Trimesh`` to sample), needed by ``rank.refine``;
+    no_contact (320, 240, 3) uint8 RGB, the sensors' no-contact image, and patch_model, the contact-patch
+    calibration (``patch.PatchModel``), needed by ``select.contacts=patch``; mesh: the object
+    (``trimesh.Trimesh``), needed by ``rank.agreement_weight`` > 0 (render-and-compare).
     """
 
     def __init__(
@@ -104,6 +116,9 @@ class Estimator:
         settings: Settings | None = None,
         normals: np.ndarray | None = None,
         surface=None,
+        no_contact: np.ndarray | None = None,
+        patch_model: PatchModel | None = None,
+        mesh=None,
     ):
         self.settings = settings if settings is not None else Settings.from_cfg(_default_cfg())
         self.points = np.asarray(points, dtype=np.float64)
@@ -129,6 +144,13 @@ class Estimator:
         if self.settings.rank.refine and surface is None:
             raise InputError("rank.refine needs the object's surface (a mesh or contact.SurfaceSamples)")
         self.surface = surface
+        if self.settings.select.reads_patches and (no_contact is None or patch_model is None):
+            raise InputError("select.contacts=patch needs the sensors' no-contact image and the patch calibration")
+        self.no_contact = None if no_contact is None else check_images(np.asarray(no_contact)[None], 1)[0]
+        self.patch_model = patch_model
+        if self.settings.rank.uses_agreement and mesh is None:
+            raise InputError("rank.agreement_weight > 0 needs the object's mesh")
+        self.mesh = mesh
         if not isinstance(pieces, collision.ConvexPieces):
             pieces = collision.vertices_to_pieces(list(pieces))
         self.penetration_model = collision.PenetrationModel(pieces)
@@ -144,13 +166,13 @@ class Estimator:
         data_dir: str | Path | None = None,
         background: np.ndarray | None = None,
     ) -> Estimator:
-        """Load one object's artifacts: object.h5 (collision pieces), surface.h5 (points) and, for
-        method 'ours', latents.h5 (angles) and the autoencoder checkpoint. cfg: the composed config
+        """Load one object's artifacts: object.h5 (collision pieces, mesh), surface.h5 (points) and, for
+        method 'ours', latents.h5 (angles), the autoencoder checkpoint and the patch calibration. cfg: the composed config
         (default: conf/ with no overrides). ArtifactError names a missing file and the command that
         makes it.
 
         background: the no-contact image (320, 240, 3) uint8 RGB of the sensor whose images will be
-        estimated; the encoder sees each image minus it. Pass your own sensor's when it is not the
+        estimated; the encoder and the contact patches see each image minus it. Pass your own sensor's when it is not the
         simulated one; by default it is ``render.background`` from the data directory
         (``steps.encode.load_background``), the background the databases and the paper's images were rendered over.
         """
@@ -158,17 +180,22 @@ class Estimator:
         settings = Settings.from_cfg(cfg)
         points = load_surface_points(artifacts_dir, object_name)
         pieces = rank_step.load_pieces(artifacts_dir, object_name)
-        db_angles = encoder = None
+        db_angles = encoder = patch_model = None
         if settings.select.method == "ours":
             db_angles, latent_nc = encode_step.load_database_angles(artifacts_dir, object_name)
             if background is None:
                 background = encode_step.load_background(cfg, data_dir)
+            background = check_images(np.asarray(background)[None], 1)[0]
             encoder = encode_step.LatentAngleEncoder.from_checkpoint(
-                layout.ae_checkpoint(artifacts_dir), check_images(np.asarray(background)[None], 1)[0], latent_nc
+                layout.ae_checkpoint(artifacts_dir), background, latent_nc
             )
+            if settings.select.reads_patches:
+                patch_model = encode_step.load_patch_model(artifacts_dir)
         normals = load_surface_normals(artifacts_dir, object_name) if needs_normals(settings) else None
-        surface = rank_step.load_refine_surface(artifacts_dir, object_name) if settings.rank.refine else None
-        return cls(points, pieces, db_angles, encoder, settings, normals, surface)
+        mesh = rank_step.load_mesh(artifacts_dir, object_name) if settings.rank.rescores else None
+        surface = sample_surface(mesh) if settings.rank.refine else None
+        return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model,
+                   mesh if settings.rank.uses_agreement else None)
 
     # Each step is public so that a caller can run, time or inspect it alone.
 
@@ -179,22 +206,30 @@ class Estimator:
         images = np.asarray(images)
         return np.asarray(self.encoder(images), dtype=np.float64).reshape(images.shape[0])
 
-    def select(self, T_world_sensors, angles: np.ndarray | None = None) -> Selection:
-        """Candidate tuples for the sensors at T_world_sensors (L, 4, 4), given the images' angles (L,)."""
-        return select_step.select(self.points, self.db_angles, check_sensor_poses(T_world_sensors), angles,
-                                  self.settings.select, self.normals)
+    def contacts(self, T_world_sensors, images=None) -> Contacts:
+        """The sensors' contacts (``select.contacts``): their landmarks, or each image's contact patch
+        (images (L, 320, 240, 3) uint8 RGB needed then)."""
+        T = check_sensor_poses(T_world_sensors)
+        if self.settings.select.reads_patches:
+            images = check_images(images, T.shape[0])
+        return encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model)
 
-    def optimize(self, T_world_sensors, tuples: np.ndarray) -> optimization.PoseHypotheses:
+    def select(self, contacts: Contacts, angles: np.ndarray | None = None) -> Selection:
+        """Candidate tuples for the sensors' contacts (``contacts``), given the images' angles (L,)."""
+        return select_step.select(self.points, self.db_angles, contacts, angles, self.settings.select, self.normals)
+
+    def optimize(self, contacts: Contacts, tuples: np.ndarray) -> optimization.PoseHypotheses:
         """Pose hypotheses for tuples (T, L) of database indices."""
-        return optimize_step.optimize(self.points, check_sensor_poses(T_world_sensors), tuples, self.settings.optimize,
-                                      self.normals)
+        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals)
 
-    def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray) -> ranking.RankedPoses:
+    def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray,
+             contacts: Contacts | None = None) -> ranking.RankedPoses:
         """The top-k distinct poses of (P, 4, 4) hypotheses with losses (P,), rounded first to the form
-        the optimize stage stores (``compact_hypotheses``), so that online and offline rank alike."""
+        the optimize stage stores (``compact_hypotheses``), so that online and offline rank alike.
+        contacts: as ``contacts`` returned (default: the sensors' landmarks)."""
         poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
         return rank_step.rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses,
-                              self.settings.rank, self.surface)
+                              self.settings.rank, self.surface, contacts, self.mesh)
 
     def estimate(self, T_world_sensors, images=None) -> Estimate:
         """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.
@@ -209,18 +244,19 @@ class Estimator:
         seconds = {}
         t0 = time.perf_counter()
         angles = self.encode(images) if ours else None
+        contacts = encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model)
         seconds["encode"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        chosen = select_step.select(self.points, self.db_angles, T, angles, self.settings.select, self.normals)
+        chosen = self.select(contacts, angles)
         seconds["select"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        hypotheses = optimize_step.optimize(self.points, T, chosen.tuples, self.settings.optimize, self.normals)
+        hypotheses = self.optimize(contacts, chosen.tuples)
         seconds["optimize"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        ranked = self.rank(T, hypotheses.poses, hypotheses.losses)
+        ranked = self.rank(T, hypotheses.poses, hypotheses.losses, contacts)
         seconds["rank"] = time.perf_counter() - t0
         seconds["total"] = time.perf_counter() - start
         return Estimate(
@@ -229,6 +265,7 @@ class Estimator:
             losses=ranked.losses,
             penetrations=ranked.penetrations,
             angles=angles,
+            contacts=contacts,
             selection=chosen,
             n_hypotheses=int(hypotheses.poses.shape[0]),
             seconds=seconds,

@@ -48,6 +48,11 @@ def ae_checkpoint(artifacts_dir: str | Path) -> Path:
     return ae_dir(artifacts_dir) / "model.pt"
 
 
+def patch_model_file(artifacts_dir: str | Path) -> Path:
+    """The contact-patch calibration (stage calibrate_patch)."""
+    return Path(artifacts_dir) / "patch" / "model.npz"
+
+
 def scenes_file(artifacts_dir: str | Path, scene_set: str) -> Path:
     """Scenes with ground truth (stage make_scenes): ``caddeo2023`` or ``validation``."""
     return Path(artifacts_dir) / "scenes" / f"{scene_set}.h5"

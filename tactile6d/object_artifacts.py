@@ -18,10 +18,12 @@ from tactile6d.errors import ArtifactError
 from tactile6d.io import read_artifact
 
 
-def require(path: Path, stage: str, name: str) -> Path:
-    """``path`` if it is a file; else an ArtifactError naming the DVC stage that makes it for object ``name``."""
+def require(path: Path, stage: str, name: str | None = None) -> Path:
+    """``path`` if it is a file; else an ArtifactError naming the DVC stage that makes it (for object
+    ``name`` when the stage runs per object)."""
     if not path.is_file():
-        raise ArtifactError(f"{path}: missing; make it with `dvc repro {stage}@{name}` (or `dvc repro` for all)")
+        target = stage if name is None else f"{stage}@{name}"
+        raise ArtifactError(f"{path}: missing; make it with `dvc repro {target}` (or `dvc repro` for all)")
     return path
 
 

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -663,11 +664,11 @@ def fit_model(
     return PatchModel(coefficients, **settings)
 
 
-def calibration_renderer(**overrides) -> DigitRenderer:
-    """The renderer calibration uses: the default DIGIT model over a flat mid-grey background (so no
-    difference clips), with the default noise."""
+def calibration_renderer(render_config: Mapping | None = None, **overrides) -> DigitRenderer:
+    """The renderer calibration uses: the DIGIT model of ``render_config`` (the ``render`` config section;
+    None: the renderer's own defaults) over a flat mid-grey background, so that no difference clips."""
     grey = np.full((H, W, 3), 128, dtype=np.uint8)
-    return DigitRenderer(grey, **overrides)
+    return DigitRenderer.from_config(render_config or {}, grey, **overrides)
 
 
 def calibration_set(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer | None = None):

@@ -92,7 +92,7 @@ def refine_poses(
     surface: an object with ``points`` (S, 3), unit ``normals`` (S, 3) and a cKDTree ``tree`` over the
     points, in the object frame (``contact.SurfaceSamples``); sensor_points (L, 3), sensor_normals
     (L, 3) outward unit normals, world frame; normal_weight in m/rad (0: points only); offset (m) how
-    far outside the surface the contact points should sit; k samples considered per match.
+    far outside the surface the contact points should sit (a number, or (L,) one per sensor); k samples considered per match.
     """
     T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
     n_poses, n_sensors = T.shape[0], s.shape[0]

@@ -16,24 +16,29 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from tactile6d.config import load_config
+from tactile6d.contacts import Contacts
 from tactile6d.geometry import make_pose, rotmat_to_rotvec, rotvec_to_rotmat
 from tactile6d.io import Schema, register_schema
 from tactile6d.settings import METHODS
 
 CARRIED_FIELDS = ("names", "objects", "T_world_sensors", "failure")  # written by all three stages
+# The sensors' contacts (tactile6d.contacts), per scene and sensor: points (S, L, 3), normals (S, L, 3), from_patch
+# (S, L); the observed patches (S, L, 320, 240) mask and depth, or (S, L, 0, 0) for landmark contacts.
+CONTACT_FIELDS = ("contact_points", "contact_normals", "contact_from_patch")
+PATCH_FIELDS = ("contact_masks", "contact_depths")
 register_schema(Schema(
-    "tuples", 1, "select_tuples",
-    CARRIED_FIELDS + ("tuples", "errors", "offsets", "angles", "omega_sizes", "delta_h", "widened", "delta_d",
+    "tuples", 2, "select_tuples",
+    CARRIED_FIELDS + CONTACT_FIELDS + PATCH_FIELDS + ("tuples", "errors", "offsets", "angles", "omega_sizes", "delta_h", "widened", "delta_d",
                       "capped", "seconds_encode", "seconds_select"),
 ))
 register_schema(Schema(
-    "hypotheses", 1, "optimize",
-    CARRIED_FIELDS + ("translations", "rotvecs", "losses", "tuple_index", "offsets", "seconds_encode",
+    "hypotheses", 2, "optimize",
+    CARRIED_FIELDS + CONTACT_FIELDS + PATCH_FIELDS + ("translations", "rotvecs", "losses", "tuple_index", "offsets", "seconds_encode",
                       "seconds_select", "seconds_optimize"),
 ))
 register_schema(Schema(
-    "ranked", 1, "rank",
-    CARRIED_FIELDS + ("poses", "scores", "losses", "penetrations", "n_poses", "seconds_encode", "seconds_select",
+    "ranked", 2, "rank",
+    CARRIED_FIELDS + CONTACT_FIELDS + ("poses", "scores", "losses", "penetrations", "n_poses", "seconds_encode", "seconds_select",
                       "seconds_optimize", "seconds_rank"),
 ))
 
@@ -48,6 +53,32 @@ def stack_ragged(parts: Sequence[np.ndarray], row_shape: tuple[int, ...], dtype)
 def scene_rows(data: np.ndarray, offsets: np.ndarray, scene: int) -> np.ndarray:
     """Scene ``scene``'s rows of an array stacked by ``stack_ragged``."""
     return data[offsets[scene] : offsets[scene + 1]]
+
+def stack_contacts(contacts: Sequence[Contacts], n_sensors: int) -> dict[str, np.ndarray]:
+    """Each scene's contacts (L = n_sensors each) -> the CONTACT_FIELDS and PATCH_FIELDS arrays (module
+    comment). The patches are kept only when every scene has them (source ``patch``)."""
+    observed = bool(contacts) and all(c.observed for c in contacts)
+    empty = np.zeros((len(contacts), n_sensors, 0, 0))
+    return {
+        "contact_points": np.array([c.points for c in contacts], dtype=np.float64).reshape(-1, n_sensors, 3),
+        "contact_normals": np.array([c.normals for c in contacts], dtype=np.float64).reshape(-1, n_sensors, 3),
+        "contact_from_patch": np.array([c.from_patch for c in contacts], dtype=bool).reshape(-1, n_sensors),
+        "contact_masks": np.array([c.masks for c in contacts], dtype=bool) if observed else empty.astype(bool),
+        "contact_depths": np.array([c.depths for c in contacts], dtype=np.float32) if observed
+        else empty.astype(np.float32),
+    }
+
+
+def scene_contacts(art, scene: int) -> Contacts:
+    """Scene ``scene``'s contacts from an artifact holding the CONTACT_FIELDS (and the PATCH_FIELDS, if it has them)."""
+    masks = depths = None
+    if "contact_masks" in art.data and art["contact_masks"].shape[-1] > 0:
+        masks = np.asarray(art["contact_masks"][scene], dtype=bool)
+        depths = np.asarray(art["contact_depths"][scene], dtype=np.float32)
+    return Contacts(np.asarray(art["contact_points"][scene], dtype=np.float64),
+                    np.asarray(art["contact_normals"][scene], dtype=np.float64),
+                    np.asarray(art["contact_from_patch"][scene], dtype=bool), masks, depths)
+
 
 def median_or_nan(values) -> float:
     """The median, or NaN for an empty scene set (without NumPy's empty-slice warning)."""

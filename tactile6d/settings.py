@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from tactile6d import selection
+from tactile6d.contacts import SOURCES
 from tactile6d.errors import ConfigError
 
 METHODS = ("ours", "baseline")
@@ -40,12 +41,15 @@ class SelectSettings:
     delta_d_rule: str
     normal_tol_deg: float | None
     normal_max_sensors: int | None
+    contacts: str
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> SelectSettings:
         out = cls(**_fields(section, cls))
         if out.method not in METHODS:
             raise ConfigError(f"select.method must be one of {', '.join(METHODS)}, not {out.method!r}")
+        if out.contacts not in SOURCES:
+            raise ConfigError(f"select.contacts must be one of {', '.join(SOURCES)}, not {out.contacts!r}")
         if out.delta_d_rule not in selection.DELTA_D_RULES:
             raise ConfigError(f"select.delta_d_rule must be one of {', '.join(selection.DELTA_D_RULES)}, "
                               f"not {out.delta_d_rule!r}")
@@ -61,6 +65,12 @@ class SelectSettings:
     def uses_normals(self) -> bool:
         """Whether the normal check can apply at all (then the database normals are needed)."""
         return self.normal_tol_deg is not None
+
+    @property
+    def reads_patches(self) -> bool:
+        """Whether each image's contact patch gives its sensor's contact: source ``patch``, method ``ours``
+        (the baseline reads no image, so it keeps the paper's landmarks)."""
+        return self.method == "ours" and self.contacts == "patch"
 
     def normals_apply(self, n_sensors: int) -> bool:
         """Whether the normal check applies to an estimate from ``n_sensors`` sensors."""
@@ -123,21 +133,45 @@ class RankSettings:
     dedup_translation: float
     dedup_rotation: float
     batch: int
+    candidates: int
     refine: bool
-    refine_candidates: int
     refine_iterations: int
     refine_normal_weight: float
     refine_offset: float
+    agreement_weight: float
+    agreement_step: int
+    agreement_free_margin: float
+    agreement_mask_weight: float
+    agreement_depth_weight: float
+    agreement_free_area_weight: float
+    agreement_free_depth_weight: float
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> RankSettings:
         out = cls(**_fields(section, cls))
         if out.top_k < 1 or out.batch < 1:
             raise ConfigError(f"rank.top_k and rank.batch must be >= 1, got {out.top_k}, {out.batch}")
-        if out.refine and (out.refine_candidates < out.top_k or out.refine_iterations < 1 or out.refine_normal_weight < 0):
-            raise ConfigError("rank.refine needs refine_candidates >= top_k, refine_iterations >= 1 and "
-                              "refine_normal_weight >= 0")
+        if out.rescores and out.candidates < out.top_k:
+            raise ConfigError(f"rank.candidates ({out.candidates}) must be >= rank.top_k ({out.top_k})")
+        if out.refine and (out.refine_iterations < 1 or out.refine_normal_weight < 0):
+            raise ConfigError("rank.refine needs refine_iterations >= 1 and refine_normal_weight >= 0")
+        weights = (out.agreement_weight, out.agreement_free_margin, out.agreement_mask_weight,
+                   out.agreement_depth_weight, out.agreement_free_area_weight, out.agreement_free_depth_weight)
+        if min(weights) < 0:
+            raise ConfigError(f"rank.agreement_* weights and margin must be >= 0, got {weights}")
+        if out.agreement_step < 1 or 240 % out.agreement_step or 320 % out.agreement_step:
+            raise ConfigError(f"rank.agreement_step must divide 240 and 320, got {out.agreement_step}")
         return out
+
+    @property
+    def uses_agreement(self) -> bool:
+        """Whether render-and-compare re-scores the candidates (it needs the observed contact patches)."""
+        return self.agreement_weight > 0
+
+    @property
+    def rescores(self) -> bool:
+        """Whether the best ``candidates`` poses are re-scored (refined and/or rendered and compared)."""
+        return self.refine or self.uses_agreement
 
 
 @dataclass(frozen=True)

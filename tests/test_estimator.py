@@ -101,9 +101,10 @@ def test_steps_called_one_by_one_give_the_same_estimate(world):
     e = make_estimator(world)
     T = world["T_world_sensors"]
     angles = e.encode(world["images"])
-    chosen = e.select(T, angles)
-    hypotheses = e.optimize(T, chosen.tuples)
-    ranked = e.rank(T, hypotheses.poses, hypotheses.losses)
+    contacts = e.contacts(T, world["images"])
+    chosen = e.select(contacts, angles)
+    hypotheses = e.optimize(contacts, chosen.tuples)
+    ranked = e.rank(T, hypotheses.poses, hypotheses.losses, contacts)
     whole = e.estimate(T, world["images"])
     np.testing.assert_array_equal(ranked.poses, whole.poses)
     np.testing.assert_array_equal(ranked.scores, whole.scores)

@@ -9,9 +9,11 @@ import trimesh
 
 from stages import evaluate
 from tactile6d import layout
+from tactile6d.contacts import sensors_to_landmark_contacts
 from tactile6d.geometry import make_pose
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.meshes import pack_pieces
+from tactile6d.run_artifacts import stack_contacts
 from tactile6d.sensor import sensor_poses_touching
 
 
@@ -42,7 +44,8 @@ def artifacts(tmp_path):
             "failure": np.array(["", ""]), "poses": poses, "scores": np.zeros((2, 5)), "losses": np.zeros((2, 5)),
             "penetrations": np.zeros((2, 5, 3)), "n_poses": np.array([2, 2]),
             "seconds_encode": np.array([0.1, 0.3]), "seconds_select": np.array([0.1, 0.1]),
-            "seconds_optimize": np.array([0.2, 0.2]), "seconds_rank": np.array([0.1, 0.1])})
+            "seconds_optimize": np.array([0.2, 0.2]), "seconds_rank": np.array([0.1, 0.1]),
+            **stack_contacts([sensors_to_landmark_contacts(T) for T in sensors], 3)})
     return tmp_path
 
 

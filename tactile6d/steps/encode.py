@@ -1,8 +1,11 @@
-"""Step 1, encode: tactile images -> latent angles, with what it loads (the autoencoder checkpoint, the
-database's latent angles, the sensor's no-contact image).
+"""Step 1, encode: tactile images -> latent angles and the sensors' contacts, with what it loads (the
+autoencoder checkpoint, the database's latent angles, the sensor's no-contact image, the contact-patch
+calibration).
 
 The angle of an image is ``arccos(cos_sim(h, h_nc))``: how far its latent ``h`` is from the latent
-``h_nc`` of the no-contact image, the one number tactile selection compares with the database's.
+``h_nc`` of the no-contact image, the one number tactile selection compares with the database's. The
+contacts are the paper's landmarks, or each image's contact patch (``select.contacts``,
+``tactile6d.contacts``).
 """
 
 from __future__ import annotations
@@ -14,10 +17,17 @@ import numpy as np
 
 from tactile6d import layout
 from tactile6d.autoencoder import encode, latent_angles, load_checkpoint
+from tactile6d.contacts import (
+    Contacts,
+    patches_to_contacts,
+    sensors_to_landmark_contacts,
+)
 from tactile6d.data import DataStore
-from tactile6d.errors import DataError
+from tactile6d.errors import DataError, InputError
 from tactile6d.io import read_artifact, read_tactile_image
 from tactile6d.object_artifacts import require
+from tactile6d.patch import PatchModel, image_to_patch, load_model
+from tactile6d.settings import SelectSettings
 
 
 def load_database_angles(artifacts_dir: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -66,3 +76,28 @@ class LatentAngleEncoder:
 
     def __call__(self, images: np.ndarray) -> np.ndarray:
         return latent_angles(encode(self.model, self.norm, images, self.background), self.latent_nc)
+
+
+def load_patch_model(artifacts_dir: str | Path) -> PatchModel:
+    """The contact-patch calibration (stage calibrate_patch)."""
+    return load_model(require(layout.patch_model_file(artifacts_dir), "calibrate_patch"))
+
+
+def read_contacts(
+    settings: SelectSettings,
+    T_world_sensors: np.ndarray,
+    images: np.ndarray | None = None,
+    no_contact: np.ndarray | None = None,
+    model: PatchModel | None = None,
+) -> Contacts:
+    """The sensors' contacts for one estimate: their landmarks, or (``settings.reads_patches``) each
+    image's contact patch.
+
+    T_world_sensors (L, 4, 4); images (L, 320, 240, 3) uint8 RGB, no_contact (320, 240, 3) uint8 RGB
+    (the sensor's no-contact image) and model (the patch calibration) are needed for patches.
+    """
+    if not settings.reads_patches:
+        return sensors_to_landmark_contacts(T_world_sensors)
+    if images is None or no_contact is None or model is None:
+        raise InputError("select.contacts=patch needs the images, the no-contact image and the patch calibration")
+    return patches_to_contacts([image_to_patch(im, no_contact, model) for im in images], T_world_sensors)

@@ -10,24 +10,24 @@ from __future__ import annotations
 import numpy as np
 
 from tactile6d import optimize as optimization
-from tactile6d.sensor import contact_normals, contact_points
+from tactile6d.contacts import Contacts
 from tactile6d.settings import OptimizeSettings
 
 
 def optimize(
     points: np.ndarray,
-    T_world_sensors: np.ndarray,
+    contacts: Contacts,
     tuples: np.ndarray,
     settings: OptimizeSettings,
     normals: np.ndarray | None = None,
 ) -> optimization.PoseHypotheses:
     """Pose hypotheses for the tuples: (P, 4, 4) poses, (P,) losses (m), tuple index.
 
-    normals (M, 3): the database normals, needed when ``optimize.normal_weight`` > 0.
+    contacts: the L sensors' contact points and normals (``tactile6d.contacts``); normals (M, 3): the database normals, needed when ``optimize.normal_weight`` > 0.
     """
     return optimization.tuples_to_poses(
         points,
-        contact_points(T_world_sensors),
+        contacts.points,
         tuples,
         settings.solver,
         np.random.default_rng(settings.seed),
@@ -39,6 +39,6 @@ def optimize(
         n_irls=int(settings.n_irls),
         precision=str(settings.precision),
         normals=normals,
-        sensor_normals=contact_normals(T_world_sensors),
-        normal_weight=settings.normal_weight_for(T_world_sensors.shape[0]),
+        sensor_normals=contacts.normals,
+        normal_weight=settings.normal_weight_for(contacts.points.shape[0]),
     )

@@ -1,5 +1,6 @@
-"""Step 4, rank: the best distinct poses by loss + deepest sensor penetration, with what it loads (the
-object's convex collision pieces and, for ``rank.refine``, its surface samples).
+"""Step 4, rank: the best distinct poses by loss + deepest sensor penetration, optionally re-scored by
+surface refinement and by render-and-compare, with what it loads (the object's convex collision pieces
+and, for the re-scoring, its mesh and surface samples).
 """
 
 from __future__ import annotations
@@ -10,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from tactile6d import collision, layout, ranking
+from tactile6d import agreement, collision, layout, ranking
 from tactile6d import refine as refinement
 from tactile6d.contact import SurfaceSamples, sample_surface
+from tactile6d.contacts import Contacts, sensors_to_landmark_contacts
 from tactile6d.errors import InputError
 from tactile6d.io import read_artifact
 from tactile6d.meshes import unpack_pieces
 from tactile6d.object_artifacts import require
-from tactile6d.sensor import contact_normals, contact_points
 from tactile6d.settings import RankSettings
 
 
@@ -28,26 +29,38 @@ def rank(
     losses: np.ndarray,
     settings: RankSettings,
     surface=None,
+    contacts: Contacts | None = None,
+    mesh=None,
 ) -> ranking.RankedPoses:
     """The top-k distinct poses by loss + deepest sensor penetration (the paper's collision-aware ranking).
 
-    model: the object's PenetrationModel; poses (P, 4, 4) ``T_world_object``; losses (P,) m.
+    model: the object's PenetrationModel; poses (P, 4, 4) ``T_world_object``; losses (P,) m; contacts:
+    the sensors' contacts (default: their landmarks, ``contacts.sensors_to_landmark_contacts``).
 
-    With ``rank.refine`` (not in the paper; ``tactile6d.refine``): the best ``refine_candidates``
-    distinct poses are ranked as above, each is refined against ``surface`` (the object's
-    ``contact.SurfaceSamples``, required then), and the refined poses are ranked again by
-    ``d + refine_normal_weight * a + deepest penetration``, d and a the refined pose's mean
-    point-to-plane residual (m) and normal angle (rad) (``refine.surface_losses``); ``losses`` of
-    the result are then ``d + refine_normal_weight * a``.
+    When ``settings.rescores``, the best ``candidates`` distinct poses ranked as above are re-scored
+    (neither is in the paper):
+
+    - ``rank.refine`` (``tactile6d.refine``): each pose is refined against ``surface`` (the object's
+      ``contact.SurfaceSamples``, required then) and scored ``d + refine_normal_weight * a + deepest
+      penetration``, d and a the refined pose's mean point-to-plane residual (m) and normal angle (rad)
+      (``refine.surface_losses``); ``losses`` of the result are then ``d + refine_normal_weight * a``.
+    - ``rank.agreement_weight`` > 0 (``tactile6d.agreement``): render-and-compare. Each pose's predicted
+      contact on every gel is compared with the observed patch of ``contacts`` (source ``patch``
+      needed) and ``agreement_weight`` (m) times the agreement cost is added to the score. ``mesh``
+      (the object, ``trimesh.Trimesh`` or ``render.MeshArrays``) is required then.
     """
     pieces = model.pieces
+    contacts = contacts if contacts is not None else sensors_to_landmark_contacts(T_world_sensors)
     if settings.refine and surface is None:
         raise InputError("rank.refine needs the object's surface samples")
+    if settings.uses_agreement and (mesh is None or not contacts.observed):
+        raise InputError("rank.agreement_weight > 0 needs the object's mesh and the observed contact patches "
+                         "(select.contacts=patch)")
     first = ranking.rank_poses(
         poses,
         losses,
         partial(collision.poses_to_penetrations, model, T_world_sensor=T_world_sensors),
-        top_k=int(settings.refine_candidates if settings.refine else settings.top_k),
+        top_k=int(settings.candidates if settings.rescores else settings.top_k),
         tol_translation=float(settings.dedup_translation),
         tol_rotation=float(np.radians(settings.dedup_rotation)),
         depth_bounds=(
@@ -56,21 +69,46 @@ def rank(
         ),
         batch=int(settings.batch),
     )
-    if not settings.refine:
+    if not settings.rescores:
         return first
-    s, n = contact_points(T_world_sensors), contact_normals(T_world_sensors)
-    w, offset = float(settings.refine_normal_weight), float(settings.refine_offset)
-    refined = refinement.refine_poses(surface, first.poses, s, n, int(settings.refine_iterations), w, offset)
-    distance, angle = refinement.surface_losses(surface, refined, s, n, w, offset)
-    new_losses = distance + w * angle
-    depths = collision.poses_to_penetrations(model, refined, T_world_sensors)
+    candidates, new_losses, depths, n_scored = first.poses, first.losses, first.penetrations, first.n_scored
+    if settings.refine:
+        s, n = contacts.points, contacts.normals
+        w, offset = float(settings.refine_normal_weight), contacts.offsets(settings.refine_offset)
+        candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w, offset)
+        distance, angle = refinement.surface_losses(surface, candidates, s, n, w, offset)
+        new_losses = distance + w * angle
+        depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
+        n_scored += len(candidates)
     scores = new_losses + depths.max(axis=1)
+    if settings.uses_agreement:
+        scores = scores + settings.agreement_weight * agreement_cost(mesh, candidates, T_world_sensors, contacts,
+                                                                     settings)
     kept = ranking.distinct_in_order(
-        refined, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
+        candidates, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
         float(np.radians(settings.dedup_rotation)), int(settings.top_k),
     )
-    return ranking.RankedPoses(refined[kept], scores[kept], new_losses[kept], depths[kept], first.index[kept],
-                               first.n_scored + len(refined))
+    return ranking.RankedPoses(candidates[kept], scores[kept], new_losses[kept], depths[kept], first.index[kept],
+                               n_scored)
+
+
+def agreement_cost(mesh, poses: np.ndarray, T_world_sensors: np.ndarray, contacts: Contacts,
+                   settings: RankSettings) -> np.ndarray:
+    """Render-and-compare cost (P,) of poses (P, 4, 4) against the observed patches of ``contacts``:
+    ``agreement.agreement_to_cost`` of the terms on the ray grid of ``rank.agreement_step`` pixels, a
+    block being pressed when at least half of its pixels are in the observed mask."""
+    step = int(settings.agreement_step)
+    observed_mask = agreement.image_to_grid(contacts.masks, step) >= 0.5
+    observed_depth = agreement.image_to_grid(contacts.depths, step)
+    terms = agreement.poses_to_agreement(mesh, poses, T_world_sensors, observed_mask, observed_depth, step,
+                                         float(settings.agreement_free_margin))
+    return agreement.agreement_to_cost(
+        terms,
+        mask_weight=float(settings.agreement_mask_weight),
+        depth_weight=float(settings.agreement_depth_weight),
+        free_area_weight=float(settings.agreement_free_area_weight),
+        free_depth_weight=float(settings.agreement_free_depth_weight),
+    )
 
 
 def load_pieces(artifacts_dir: str | Path, name: str) -> collision.ConvexPieces:
@@ -79,9 +117,14 @@ def load_pieces(artifacts_dir: str | Path, name: str) -> collision.ConvexPieces:
     return collision.vertices_to_pieces([v for v, _ in unpack_pieces(read_artifact(path, "object").data)])
 
 
-def load_refine_surface(artifacts_dir: str | Path, name: str) -> SurfaceSamples:
-    """The object's clean mesh (stage prepare_object) as ``contact.SurfaceSamples`` (1 mm samples with
-    face normals), the surface ``rank.refine`` fits the sensors' contacts to."""
+def load_mesh(artifacts_dir: str | Path, name: str) -> trimesh.Trimesh:
+    """The object's clean mesh (stage prepare_object), object frame: what render-and-compare ray-casts."""
     path = require(layout.object_file(artifacts_dir, name), "prepare_object", name)
     art = read_artifact(path, "object")
-    return sample_surface(trimesh.Trimesh(np.asarray(art["vertices"]), np.asarray(art["faces"]), process=False))
+    return trimesh.Trimesh(np.asarray(art["vertices"]), np.asarray(art["faces"]), process=False)
+
+
+def load_refine_surface(artifacts_dir: str | Path, name: str) -> SurfaceSamples:
+    """The object's clean mesh as ``contact.SurfaceSamples`` (1 mm samples with face normals), the
+    surface ``rank.refine`` fits the sensors' contacts to."""
+    return sample_surface(load_mesh(artifacts_dir, name))

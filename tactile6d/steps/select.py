@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tactile6d import selection
+from tactile6d.contacts import Contacts
 from tactile6d.errors import InputError
-from tactile6d.sensor import contact_normals, contact_points
 from tactile6d.settings import SelectSettings
 
 
@@ -41,7 +41,7 @@ class Selection:
 def select(
     points: np.ndarray,
     db_angles: np.ndarray | None,
-    T_world_sensors: np.ndarray,
+    contacts: Contacts,
     angles: np.ndarray | None,
     settings: SelectSettings,
     normals: np.ndarray | None = None,
@@ -49,16 +49,16 @@ def select(
     """Tactile then distance selection; method 'baseline' skips the tactile part (all M points per sensor).
 
     points (M, 3) database points (object frame, m); db_angles (M,) their latent angles (rad; unused
-    by the baseline); T_world_sensors (L, 4, 4); angles (L,) the sensors' latent angles (rad; unused by
+    by the baseline); contacts: the L sensors' contact points and normals (``tactile6d.contacts``); angles (L,) the sensors' latent angles (rad; unused by
     the baseline); normals (M, 3) the points' outward normals, needed when ``select.normal_tol_deg``
     is set (normal-consistent tuples only).
     """
-    n_sensors = T_world_sensors.shape[0]
+    n_sensors = contacts.points.shape[0]
     check = None
     if settings.normals_apply(n_sensors):
         if normals is None:
             raise InputError("select.normal_tol_deg is set: the database normals are needed")
-        check = selection.NormalCheck(np.asarray(normals, dtype=np.float64), contact_normals(T_world_sensors),
+        check = selection.NormalCheck(np.asarray(normals, dtype=np.float64), contacts.normals,
                                       float(np.radians(settings.normal_tol_deg)))
     if settings.method == "ours":
         if db_angles is None or angles is None:
@@ -77,7 +77,7 @@ def select(
         widened = np.zeros(n_sensors, dtype=bool)
     chosen = selection.select_tuples(
         points,
-        contact_points(T_world_sensors),
+        contacts.points,
         omegas,
         n_max=int(settings.N),
         delta_start=float(settings.delta_d_start),
