@@ -148,7 +148,7 @@ class Estimator:
             raise InputError("select.contacts=patch needs the sensors' no-contact image and the patch calibration")
         self.no_contact = None if no_contact is None else check_images(np.asarray(no_contact)[None], 1)[0]
         self.patch_model = patch_model
-        if self.settings.rank.uses_agreement and mesh is None:
+        if self.settings.rank.uses_agreement and self.settings.select.reads_patches and mesh is None:
             raise InputError("rank.agreement_weight > 0 needs the object's mesh")
         self.mesh = mesh
         if not isinstance(pieces, collision.ConvexPieces):
@@ -195,7 +195,7 @@ class Estimator:
         mesh = rank_step.load_mesh(artifacts_dir, object_name) if settings.rank.rescores else None
         surface = sample_surface(mesh) if settings.rank.refine else None
         return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model,
-                   mesh if settings.rank.uses_agreement else None)
+                   mesh if settings.rank.uses_agreement and settings.select.reads_patches else None)
 
     # Each step is public so that a caller can run, time or inspect it alone.
 

@@ -165,7 +165,7 @@ class RankSettings:
 
     @property
     def uses_agreement(self) -> bool:
-        """Whether render-and-compare re-scores the candidates (it needs the observed contact patches)."""
+        """Whether render-and-compare re-scores the candidates (where the contacts were read from images)."""
         return self.agreement_weight > 0
 
     @property

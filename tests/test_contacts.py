@@ -5,7 +5,15 @@ the run artifacts."""
 import numpy as np
 import pytest
 import trimesh
-from test_estimator import CUTS, HALF, T_TRUE, cut_box, pose_errors, settings
+from test_estimator import (
+    CUTS,
+    HALF,
+    T_TRUE,
+    cut_box,
+    pose_errors,
+    settings,
+    small_patch_model,
+)
 
 from tactile6d import collision, contacts, patch, sensor
 from tactile6d import estimator as est
@@ -104,7 +112,7 @@ def rendered():
     T_world_sensors = T_TRUE @ np.stack(T_object_sensors)
     images = np.stack([renderer.render(mesh, T_TRUE, T, seed=i).image for i, T in enumerate(T_world_sensors)])
     return {"mesh": mesh, "T_world_sensors": T_world_sensors, "images": images,
-            "no_contact": renderer.no_contact(seed=99), "model": patch.calibrate(20, seed=0)}
+            "no_contact": renderer.no_contact(seed=99), "model": small_patch_model()}
 
 
 def make_estimator(rendered, **overrides):
@@ -146,10 +154,12 @@ def test_patch_contacts_recover_the_pose_of_tilted_off_centre_sensors(rendered):
     assert dt_patch < 0.5 * dt_landmark
 
 
-def test_render_and_compare_needs_the_observed_patches(rendered):
-    with pytest.raises(InputError, match="select.contacts=patch"):
-        make_estimator(rendered, **{"rank.agreement_weight": 0.01}).estimate(rendered["T_world_sensors"],
-                                                                               rendered["images"])
+def test_landmark_contacts_have_no_patch_to_compare_with_and_rank_without_it(rendered):
+    T, images = rendered["T_world_sensors"], rendered["images"]
+    plain = make_estimator(rendered).estimate(T, images)
+    asked = make_estimator(rendered, **{"rank.agreement_weight": 0.01}).estimate(T, images)
+    np.testing.assert_array_equal(asked.poses, plain.poses)
+    np.testing.assert_array_equal(asked.scores, plain.scores)
 
 
 # --- render-and-compare in the rank step ------------------------------------------------------------------

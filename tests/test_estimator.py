@@ -1,5 +1,6 @@
 """The online estimator on synthetic objects: recovery, diagnostics, input checks, artifact loading."""
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +10,7 @@ from omegaconf import OmegaConf
 
 from tactile6d import estimator as est
 from tactile6d import geometry as g
-from tactile6d import layout
+from tactile6d import layout, patch
 from tactile6d.config import compose_config
 from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.io import write_artifact
@@ -54,9 +55,20 @@ def world():
     }
 
 
+# The synthetic worlds here have no tactile images to read contacts from: their sensors touch at the landmark.
+LANDMARK_CONTACTS = {"select.contacts": "landmark", "rank.agreement_weight": 0.0}
+
+
 def settings(**overrides):
-    """conf/'s select/optimize/rank sections with ``section.key=value`` overrides."""
+    """conf/'s select/optimize/rank sections with landmark contacts and ``section.key=value`` overrides."""
+    overrides = {**LANDMARK_CONTACTS, **overrides}
     return Settings.from_cfg(compose_config([f"{k}={v}" for k, v in overrides.items()]))
+
+
+@functools.cache
+def small_patch_model() -> patch.PatchModel:
+    """A small contact-patch calibration (20 presses; the pipeline's has 60), made once per test process."""
+    return patch.calibrate(20, seed=0)
 
 
 def make_estimator(world, angles=None, **overrides):
@@ -214,8 +226,9 @@ def write_object_artifacts(artifacts: Path, name: str, mesh: trimesh.Trimesh, po
 
 
 def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
-    """An untrained small autoencoder checkpoint and a latents.h5 whose angles cover [0, pi] (so that any
-    image angle has database neighbours): enough to run the 'ours' path end to end."""
+    """An untrained small autoencoder checkpoint, a latents.h5 whose angles cover [0, pi] (so that any
+    image angle has database neighbours) and a small patch calibration: enough to run the 'ours' path
+    end to end."""
     import torch
 
     from tactile6d import autoencoder as ae
@@ -229,6 +242,8 @@ def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
     write_artifact(layout.latents_file(artifacts, name), "latents",
                    {"latents": latents, "latent_nc": np.ones(128, np.float32),
                     "angles": np.linspace(0.0, np.pi, n_points)})
+    layout.patch_model_file(artifacts).parent.mkdir(parents=True, exist_ok=True)
+    patch.save_model(small_patch_model(), layout.patch_model_file(artifacts))
 
 
 def test_missing_artifacts_name_the_dvc_command(tmp_path, world):

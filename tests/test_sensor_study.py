@@ -62,8 +62,9 @@ def test_sensor_subsets():
 def test_ablation_reports_every_variant_and_sensor_count(artifacts, data_dir, monkeypatch, tmp_path):
     monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
     # delta_h = pi: every database point passes the tiny autoencoder's angles, as for the baseline
+    # landmark contacts: the scene's sensors touch exact database points at their landmarks
     cfg = compose_config([f"paths.artifacts_dir={artifacts}", "select.N=200", "select.delta_h=3.2",
-                          "select.delta_h_max=3.2"])
+                          "select.delta_h_max=3.2", "select.contacts=landmark"])
     OmegaConf.set_struct(cfg, False)
     cfg.ablation.variants = {"paper": {"select": {"delta_d_rule": "paper"}, "rank": {"refine": False}},
                              "normals": {"select": {"normal_tol_deg": 20.0}, "optimize": {"normal_weight": 0.01}},

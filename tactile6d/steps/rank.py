@@ -37,30 +37,31 @@ def rank(
     model: the object's PenetrationModel; poses (P, 4, 4) ``T_world_object``; losses (P,) m; contacts:
     the sensors' contacts (default: their landmarks, ``contacts.sensors_to_landmark_contacts``).
 
-    When ``settings.rescores``, the best ``candidates`` distinct poses ranked as above are re-scored
+    With either of these on, the best ``candidates`` distinct poses ranked as above are re-scored
     (neither is in the paper):
 
     - ``rank.refine`` (``tactile6d.refine``): each pose is refined against ``surface`` (the object's
       ``contact.SurfaceSamples``, required then) and scored ``d + refine_normal_weight * a + deepest
       penetration``, d and a the refined pose's mean point-to-plane residual (m) and normal angle (rad)
       (``refine.surface_losses``); ``losses`` of the result are then ``d + refine_normal_weight * a``.
-    - ``rank.agreement_weight`` > 0 (``tactile6d.agreement``): render-and-compare. Each pose's predicted
-      contact on every gel is compared with the observed patch of ``contacts`` (source ``patch``
-      needed) and ``agreement_weight`` (m) times the agreement cost is added to the score. ``mesh``
-      (the object, ``trimesh.Trimesh`` or ``render.MeshArrays``) is required then.
+    - ``rank.agreement_weight`` > 0 (``tactile6d.agreement``): render-and-compare, when ``contacts`` hold
+      the observed patches (source ``patch``; landmark contacts, as the baseline's, have none, and are
+      ranked without it). Each pose's predicted contact on every gel is compared with the observed patch
+      and ``agreement_weight`` (m) times the agreement cost is added to the score. ``mesh`` (the object,
+      ``trimesh.Trimesh`` or ``render.MeshArrays``) is required then.
     """
     pieces = model.pieces
     contacts = contacts if contacts is not None else sensors_to_landmark_contacts(T_world_sensors)
     if settings.refine and surface is None:
         raise InputError("rank.refine needs the object's surface samples")
-    if settings.uses_agreement and (mesh is None or not contacts.observed):
-        raise InputError("rank.agreement_weight > 0 needs the object's mesh and the observed contact patches "
-                         "(select.contacts=patch)")
+    compare = settings.uses_agreement and contacts.observed
+    if compare and mesh is None:
+        raise InputError("rank.agreement_weight > 0 needs the object's mesh to compare with the observed patches")
     first = ranking.rank_poses(
         poses,
         losses,
         partial(collision.poses_to_penetrations, model, T_world_sensor=T_world_sensors),
-        top_k=int(settings.candidates if settings.rescores else settings.top_k),
+        top_k=int(settings.candidates if settings.refine or compare else settings.top_k),
         tol_translation=float(settings.dedup_translation),
         tol_rotation=float(np.radians(settings.dedup_rotation)),
         depth_bounds=(
@@ -69,7 +70,7 @@ def rank(
         ),
         batch=int(settings.batch),
     )
-    if not settings.rescores:
+    if not (settings.refine or compare):
         return first
     candidates, new_losses, depths, n_scored = first.poses, first.losses, first.penetrations, first.n_scored
     if settings.refine:
@@ -81,7 +82,7 @@ def rank(
         depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
         n_scored += len(candidates)
     scores = new_losses + depths.max(axis=1)
-    if settings.uses_agreement:
+    if compare:
         scores = scores + settings.agreement_weight * agreement_cost(mesh, candidates, T_world_sensors, contacts,
                                                                      settings)
     kept = ranking.distinct_in_order(
