@@ -70,7 +70,8 @@ def time_configuration(estimators: dict[str, Estimator], scenes: list) -> dict[s
 def with_settings(estimator: Estimator, settings: Settings) -> Estimator:
     """The same object's arrays with other settings (no reloading)."""
     return Estimator(estimator.points, estimator.penetration_model.pieces, estimator.db_angles, estimator.encoder,
-                     settings, estimator.normals, estimator.surface)
+                     settings, estimator.normals, estimator.surface, estimator.no_contact, estimator.patch_model,
+                     estimator.mesh)
 
 
 def main(argv: list[str]) -> int:
