@@ -194,8 +194,7 @@ class Estimator:
         normals = load_surface_normals(artifacts_dir, object_name) if needs_normals(settings) else None
         mesh = rank_step.load_mesh(artifacts_dir, object_name) if settings.rank.rescores else None
         surface = sample_surface(mesh) if settings.rank.refine else None
-        return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model,
-                   mesh if settings.rank.uses_agreement and settings.select.reads_patches else None)
+        return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh)
 
     # Each step is public so that a caller can run, time or inspect it alone.
 
@@ -244,7 +243,7 @@ class Estimator:
         seconds = {}
         t0 = time.perf_counter()
         angles = self.encode(images) if ours else None
-        contacts = encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model)
+        contacts = self.contacts(T, images)
         seconds["encode"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()

@@ -14,6 +14,7 @@ from test_estimator import (
     settings,
     small_patch_model,
 )
+from test_patch import smooth_background
 
 from tactile6d import collision, contacts, patch, sensor
 from tactile6d import estimator as est
@@ -97,9 +98,7 @@ def rendered():
     the cut face elsewhere), each 3-4 mm off the gel centre and tilted 12-18 deg, pressed 1.5 mm deep, and
     their rendered images (a synthetic background)."""
     mesh = cut_box()
-    rows, cols = np.mgrid[0:H, 0:W]
-    background = np.stack([70 + cols // 4, 90 + rows // 6, 120 + 0 * rows], axis=-1).astype(np.uint8)
-    renderer = DigitRenderer(background)
+    renderer = DigitRenderer(smooth_background())
     cut = np.array([HALF - np.eye(3)[a] * CUTS[a] for a in range(3)])
     cut_normal = np.cross(cut[1] - cut[0], cut[2] - cut[0])
     cut_normal *= np.sign(cut_normal @ cut.mean(axis=0)) / np.linalg.norm(cut_normal)

@@ -25,11 +25,15 @@ def model():
     return patch.calibrate(20, seed=0)
 
 
-@pytest.fixture(scope="module")
-def background():
+def smooth_background() -> np.ndarray:
     """A smooth synthetic BGR background unlike the calibration's flat grey (the method must not care)."""
     rows, cols = np.mgrid[0:H, 0:W]
     return np.stack([70 + cols // 4, 90 + rows // 6, 120 + 0 * rows], axis=-1).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def background():
+    return smooth_background()
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,6 @@ import trimesh
 
 from tactile6d import agreement, collision, layout, ranking
 from tactile6d import refine as refinement
-from tactile6d.contact import SurfaceSamples, sample_surface
 from tactile6d.contacts import Contacts, sensors_to_landmark_contacts
 from tactile6d.errors import InputError
 from tactile6d.io import read_artifact
@@ -119,13 +118,8 @@ def load_pieces(artifacts_dir: str | Path, name: str) -> collision.ConvexPieces:
 
 
 def load_mesh(artifacts_dir: str | Path, name: str) -> trimesh.Trimesh:
-    """The object's clean mesh (stage prepare_object), object frame: what render-and-compare ray-casts."""
+    """The object's clean mesh (stage prepare_object), object frame: what render-and-compare ray-casts and
+    ``rank.refine`` samples (``contact.sample_surface``)."""
     path = require(layout.object_file(artifacts_dir, name), "prepare_object", name)
     art = read_artifact(path, "object")
     return trimesh.Trimesh(np.asarray(art["vertices"]), np.asarray(art["faces"]), process=False)
-
-
-def load_refine_surface(artifacts_dir: str | Path, name: str) -> SurfaceSamples:
-    """The object's clean mesh as ``contact.SurfaceSamples`` (1 mm samples with face normals), the
-    surface ``rank.refine`` fits the sensors' contacts to."""
-    return sample_surface(load_mesh(artifacts_dir, name))
