@@ -1,4 +1,4 @@
-"""Measure how well each collision-geometry option covers the 10 YCB objects (README table).
+"""Measure how well each collision-geometry option covers the 10 YCB objects (the table of docs/collision.md).
 
     python scripts/compare_collision.py [--samples 200000]
 

@@ -2,7 +2,7 @@
 
 Reads ``artifacts/databases/<name>.h5`` and ``artifacts/ae/model.pt``. Writes ``artifacts/latents/<name>.h5``
 (schema ``latents``): ``latents`` (M, 128), ``latent_nc`` (128,) of the no-contact image, and ``angles``
-(M,) = arccos(cos_sim(h, h_nc)) in radians (DESIGN §1 step 4).
+(M,) = arccos(cos_sim(h, h_nc)) in radians, the angle tactile selection compares (docs/design.md, The method).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Stage evaluate: the metrics of DESIGN §6 for both methods on one scene set (the paper's Table I).
+"""Stage evaluate: both methods' metrics on one scene set (docs/design.md, The metrics; the paper's Table I).
 
 Reads ``artifacts/scenes/<set>.h5``, ``artifacts/runs/<set>/{ours,baseline}/ranked.h5`` and the objects'
 meshes and metric points, and the ``evaluate`` config section (the image-consistent contact metric's

@@ -27,7 +27,7 @@ from tactile6d.io import read_artifact, write_text
 REPORT_DIR = Path("reports")
 FIGURE_SCENES = 4  # pose and Omega figures for this many scenes (one per object, in order)
 
-# What tactile6d must reach on caddeo2023 (ours, L = 3), as raised on 2026-11-22 (docs/design.md, targets).
+# What tactile6d must reach on caddeo2023 (ours, L = 3), as raised on 2026-11-22 (docs/design.md, The metrics).
 TARGETS = {"pos_err_cm_top1": ("<", 1.5), "adi_auc_paper_top1": (">", 90.0), "adi_auc_rot_top1": (">", 95.0),
            "contact_acc_top1": (">", 87.5), "contact_acc_image_top1": (">", 90.0), "time_s_median": ("<=", 0.5)}
 LABELS = {"pos_err_cm_top1": "positional error #1 (cm)", "pos_err_cm_top5": "positional error #1-5 (cm)",

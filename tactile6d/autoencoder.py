@@ -1,5 +1,5 @@
-"""The object-agnostic tactile autoencoder (DESIGN §1 steps 2-3; the paper's Sec. III-A, after Sundermeyer
-et al.'s augmented autoencoder).
+"""The object-agnostic tactile autoencoder (docs/design.md, The method; the paper's Sec. III-A, after
+Sundermeyer et al.'s augmented autoencoder).
 
 Architecture: 4 convolutions (kernel 5, stride 2, ReLU) and a linear layer to a 128-d latent ``h``; the
 decoder mirrors it (linear + ReLU, then 4 blocks of nearest 2x upsampling and a kernel-5 convolution, ReLU
@@ -20,15 +20,17 @@ Peak normalisation (``peak_floor``; null turns it off, as in the paper). Each im
 divided by its peak, the largest colour-summed ``|difference|`` over its pixels, or by ``peak_floor``
 where the peak is smaller (so that the sensor noise of a no-contact image stays near zero instead of
 being blown up). The model then sees the imprint's shape at unit contrast, not how hard the gel was
-pressed: on the YCB databases the ratio of changed area to peak separates edge from corner contacts
-(AUROC 0.81) where the changed area alone does not (0.68).
+pressed: the ratio of changed area to peak tells edge from corner contacts apart better than the
+changed area alone.
 
 Input offset (``input_offset``; 0 turns it off). A uniform level added to every input pixel, a synthetic
 background in units of the peak. Without it the no-contact input is all zeros, so ``h_nc`` =
 encoder(0) is set by the biases alone; the latents of contacts then point past perpendicular to it and
-the angle saturates (medians 1.54 rad corner, 1.63 edge, 1.89 curved, 1.94 flat). With it the
-no-contact input is the level on which every training imprint sits, and the angle grows with the
-imprint over a range twice as wide (1.02 corner, 1.14 edge, 1.41 curved, 1.58 flat; with floor 20).
+the angle saturates. With it the no-contact input is the level on which every training imprint sits, and
+the angle grows with the imprint over a wider range.
+
+Both transforms stay off by default: they raised the AUROCs a little but not the pose accuracy on the
+validation scenes (docs/autoencoder.md).
 
 Angle ranking (``rank_weight``, ``rank_margin``; weight 0 turns it off, as in the paper). Reconstruction
 alone does not make the angle to no contact mean anything in particular; selection relies on it telling
@@ -37,32 +39,8 @@ database points (tactile6d.contact, applied to the superquadric mesh by make_tra
 adds ``rank_weight`` times a hinge on the cosine to the no-contact latent (``angle_ranking_loss``): within
 each batch a corner should sit at least ``rank_margin`` closer in cosine to no contact than an edge, an
 edge than a flat patch; curved contacts are not ranked. The no-contact latent is re-encoded with every
-batch. The model still never sees an object image; the AUROCs below measure how far an ordering learnt
-on superquadrics carries over to the YCB objects under the same labelling rule.
-
-Measured (seed 0 unless stated; stage ae_quality's figures and throw-away runs of the same code):
-latent-angle AUROC flat/edge, edge/corner, and edge/corner within an object, on the YCB databases, and
-the median triplet angle gap (rad). With the default training set (semi-axes 5-80 mm, 60 shapes) and
-the default ranking: 0.9996 / 0.807 / 0.840, gap 0.058; seed 1: 0.9996 / 0.794 / 0.829, gap 0.074.
-The figures below were measured on the training set of 2026-11-21 (semi-axes 15-80 mm, 30 shapes; the
-README compares the two):
-- reconstruction only (the paper's loss): 0.951 / 0.620 / 0.715, gap 0.111;
-- ranking, weight 3, margin 0.2 (the default ranking): 0.999 / 0.790 / 0.835, gap 0.054; seed 1: 0.999 /
-  0.753 / 0.790, gap 0.078;
-- weight 3, margin 0.3: 0.9995 / 0.799 / 0.837, gap 0.086; weight 10, margin 0.3: 0.999 / 0.778 / 0.808,
-  gap 0.072; weight 1, margin 0.1: 0.997 / 0.731 / 0.770, gap 0.066;
-- weight 1, margin 0.1, ranked by the generator's own kinds (surface / edge / corner of the nearest mesh
-  vertex) instead of the classifier: 0.999 / 0.675 / 0.761, gap 0.059;
-- no ranking, peak floor 20 alone: 0.976 / 0.623 / 0.726; floor 20 and offset 0.5: 0.954 / 0.655 / 0.789
-  (seed 1: 0.976 / 0.674 / 0.785); floor 20 and an offset of 10 added after the RMS scaling (a first
-  form of the switch, not kept): 0.992 / 0.637 / 0.767; 30 diverged.
-Pose estimates on the validation scenes (15-80 mm training set, default method, L = 1 / 2 / 3 sensors):
-with the ranking (weight 3, margin 0.2) position 5.56 / 2.31 / 0.99 cm and contact accuracy
-61.7 / 43.3 / 45.0 %, against 5.48 / 2.54 / 1.02 cm and 50.8 / 46.7 / 52.5 % with reconstruction only;
-with floor 20 and offset 0.5 5.32 / 2.41 / 1.15 cm and 45.8 / 47.5 / 47.5 % (select.delta_h 0.16 or
-0.20 instead of 0.12 did not change that), which is why the peak floor and offset stay off. Peak
-normalisation alone gave 40 % contact accuracy at L = 3, against 55 % without it in the defaults of the
-time (before normal_max_sensors).
+batch. The model still never sees an object image; the AUROCs in docs/autoencoder.md measure how far an
+ordering learnt on superquadrics carries over to the YCB objects under the same labelling rule.
 
 Arrays: images are uint8 ``(n, 320, 240, 3)`` (rows along the sensor's z axis, 240 columns along y; the
 colour order is whatever the caller uses, consistently); a background is ``(320, 240, 3)``. Model tensors

@@ -1,4 +1,4 @@
-"""Penetration depth between an object, as convex pieces, and the DIGIT bodies (DESIGN §1 step 7).
+"""Penetration depth between an object, as convex pieces, and the DIGIT bodies (docs/design.md, The method).
 
 A DIGIT body is the paper's PhysX proxy, a box of half extents ``sensor.BOX_HALF_EXTENTS`` centred at
 ``sensor.BOX_CENTER`` in the sensor frame. The object is a list of convex pieces (the paper's files,
@@ -8,23 +8,11 @@ which is what a per-shape contact generator such as PhysX reports as the deepest
 apart.
 
 Backend: python-fcl (``fcl.collide`` with contacts: GJK, then EPA for the depth), chosen over
-pybullet's ``getClosestPoints`` by a measured comparison (this 2-core machine, shared, 2025-11):
-
-- accuracy, face contacts: a 50 mm cube overlapping the sensor box by d along x, d = 0.5, 1, 2, 5,
-  10 mm: fcl returns d to 1e-15 m; pybullet returns d + 1.0 mm every time (its collision margin on
-  mesh shapes). A 30 mm cylinder hull pressed 0.5-5 mm into the box's top face: fcl d to 1e-15 m,
-  pybullet d + 1.0 mm. Apart (2 mm gap): both 0.
-- accuracy, any contact: 665 random poses of the cube whose exact depth (separating-axis test over the
-  15 axes of two boxes) is in (0, 10] mm: fcl error median 0.0 mm, p95 0.024 mm, 4 % over 0.1 mm,
-  1.2 % (8 poses) over 0.5 mm, max 1.8 mm (EPA stopping early on some vertex-edge contacts);
-  pybullet error median +0.65 mm, p95 1.0 mm (still 0.66 mm at p95 after subtracting its margin).
-- speed, one piece-versus-box query, mustard bottle pieces (192-346 vertices) at 1000 random poses
-  around the box, 31 % of them colliding: fcl collide 10.5 us, fcl signed distance 20.7 us,
-  pybullet 10.4 us (including resetBasePositionAndOrientation).
-
-Same speed, fcl exact, and no global physics-client state: fcl. Poses are first screened with the
-pieces' bounding spheres against the box (exact point-box distance), so pieces far from a sensor
-cost no fcl call and get depth exactly 0.
+pybullet's ``getClosestPoints`` by a measured comparison (docs/collision.md): fcl returns the exact
+depth where pybullet adds its collision margin on mesh shapes, at the same speed, and fcl keeps no
+global physics-client state. EPA can stop early on some vertex-edge contacts; ``poses_to_penetrations``
+raises its depths to two cheap lower bounds. Poses are first screened with the pieces' bounding spheres against the box (exact point-box
+distance), so pieces far from a sensor cost no fcl call and get depth exactly 0.
 
 Units: metres. Poses are 4x4 float64, ``T_world_object`` and ``T_world_sensor``.
 """
@@ -63,7 +51,7 @@ class ConvexPieces:
 
 
 # Vertices kept in a piece's inner hull: enough for a tight bound on rounded shapes, few enough that
-# bounding 5000 poses x 3 sensors costs well under a second.
+# the bounds stay cheap next to fcl's exact depths.
 INNER_VERTICES = 48
 
 

@@ -1,4 +1,4 @@
-"""Contact types (flat, edge, corner, curved) and the contact-accuracy metric (DESIGN §6).
+"""Contact types (flat, edge, corner, curved) and the contact-accuracy metric (docs/design.md, The metrics).
 
 The classifier looks at the object's surface within a ball about the size of a DIGIT gel around the
 contact, through a dense, fixed sample of the surface with face normals (``SurfaceSamples``, built
@@ -21,7 +21,8 @@ once per mesh). The rule, applied in this order (``ContactRule`` holds the thres
    the normals within ``core_radius`` (3 mm) and their mean is at least ``sharp_min_deg`` (25 deg):
    rolled rims and rounded box edges whose second face is mostly out of reach.
 4. flat: the 90th percentile of the angle between the neighbourhood's normals and their mean is below
-   ``flat_max_deg`` (5 deg). The decimated YCB scans' flat faces measure 1-4 deg; a 5 cm can side 9-12.
+   ``flat_max_deg`` (5 deg): above the decimated YCB scans' flat faces, below a can's side (figures:
+   docs/design.md, The metrics).
 5. curved: everything else (cylinders, spheres, bottles: a smooth spread of normals without creases).
 """
 

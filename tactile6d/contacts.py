@@ -24,7 +24,7 @@ import numpy as np
 
 from tactile6d import sensor
 from tactile6d.errors import InputError
-from tactile6d.patch import ContactPatch
+from tactile6d.patch import ContactPatch, depth_to_points
 
 SOURCES = ("landmark", "patch")
 
@@ -55,6 +55,29 @@ class Contacts:
         """(L,) m: how far outside the object's surface each point should sit: 0 for a point read from its
         image, ``landmark_offset`` for a landmark (its distance depends on the press, a config value)."""
         return np.where(self.from_patch, 0.0, float(landmark_offset))
+
+    def patch_points(self, T_world_sensors: np.ndarray, max_per_sensor: int) -> tuple[np.ndarray, np.ndarray]:
+        """Points of the observed patches' pressed gel, which lie on the object's surface, world frame.
+
+        T_world_sensors (L, 4, 4). Each sensor read from its image gives up to ``max_per_sensor`` of its
+        mask's pixels, evenly spread over the mask, lifted to the gel surface at their press depth
+        (``patch.depth_to_points``). -> points (M, 3) m and the sensor of each (M,) int.
+        """
+        if not self.observed or max_per_sensor < 1:
+            return np.zeros((0, 3)), np.zeros(0, dtype=int)
+        T = np.asarray(T_world_sensors, dtype=np.float64)
+        points, owners = [], []
+        for i in np.flatnonzero(self.from_patch):
+            rows, cols = np.nonzero(self.masks[i])
+            if len(rows) == 0:
+                continue
+            pick = np.unique(np.linspace(0, len(rows) - 1, min(max_per_sensor, len(rows))).round().astype(int))
+            local = depth_to_points(self.depths[i])[rows[pick], cols[pick]]
+            points.append(local @ T[i, :3, :3].T + T[i, :3, 3])
+            owners.append(np.full(len(pick), i))
+        if not points:
+            return np.zeros((0, 3)), np.zeros(0, dtype=int)
+        return np.concatenate(points), np.concatenate(owners)
 
 
 def sensors_to_landmark_contacts(T_world_sensors: np.ndarray) -> Contacts:

@@ -11,9 +11,9 @@ object would take 460 MB, and sensor noise does not compress:
   uint8 ``difference + 128`` when every value lies in [-128, 127] (always, with TACTO's
   ``diff_scale`` 0.5: the blurred half-difference stays within +-127.5), else as little-endian int16.
   The decompressed length tells the two apart. It is zero outside the blurred imprint, and smooth
-  inside, so it compresses about 14x (measured on YCB contacts: 16 KB per image);
+  inside, so it compresses well (sizes: docs/simulator.md);
 - ``masks/data`` + ``masks/offsets``: image i's contact mask (H, W) bool (the renderer's ``depth > 0``),
-  bit-packed (``np.packbits`` of the row-major mask), then zlib-compressed (about 0.3 KB);
+  bit-packed (``np.packbits`` of the row-major mask), then zlib-compressed;
 - ``mask_pixels`` (n,) int: how many pixels each mask has, to filter without decoding;
 - ``no_contact`` (H, W, 3) uint8 RGB: a noisy no-contact image (the background plus noise);
 - ``T_object_sensor`` (n, 4, 4), ``depths`` (n,) metres the gel apex is pressed in, ``rolls`` (n,) radians.
@@ -80,7 +80,7 @@ TRAINING_SET_SCHEMA = Schema(
 register_schema(DATABASE_SCHEMA)
 register_schema(TRAINING_SET_SCHEMA)
 
-_ZLIB_LEVEL = 6  # level 1 gives 26 KB per image at 2.5 ms, 6 gives 16 KB at 7.6 ms (2-core machine)
+_ZLIB_LEVEL = 6  # smaller images than level 1 for a few ms more per image (docs/simulator.md, Databases)
 _RENDER_BATCH = 128  # poses per render_many call: bounds the uint8 images held at once (30 MB)
 
 

@@ -141,7 +141,7 @@ def summarise_by_object(errors: dict[str, np.ndarray], objects: np.ndarray) -> d
     return per_object
 
 
-# The paper's Table I (DESIGN §7 and the paper), for the side-by-side tables.
+# The paper's Table I, for the side-by-side tables.
 PAPER_TABLE_I = {
     "ours": {"pos_err_cm_top1": 2.36, "adi_auc_paper_top1": 70.8, "adi_auc_rot_top1": 81.3, "contact_acc_top1": 87.5,
              "time_s_median": 35.7},

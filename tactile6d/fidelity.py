@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 MASK_BLUR_KSIZE = 15  # Gaussian kernel, pixels (sigma 2.6)
-MASK_THRESHOLD = 4.0  # grey levels; ~5 noise std after the blur (at 3, pure noise trips ~0.2% of pixels)
+MASK_THRESHOLD = 4.0  # grey levels; ~5 noise std after the blur, so that pure noise trips almost no pixel
 
 
 def blurred_difference(image: np.ndarray, background: np.ndarray, blur_ksize: int = MASK_BLUR_KSIZE) -> np.ndarray:

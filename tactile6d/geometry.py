@@ -1,6 +1,6 @@
 """Rotations and rigid transforms, in NumPy float64.
 
-Conventions (DESIGN §2):
+Conventions (docs/design.md, Conventions):
 - A pose is a 4x4 homogeneous matrix named ``T_<to>_<from>``: ``T_world_object`` maps object-frame
   points into the world frame.
 - A rotation vector ``rotvec`` (3,) is ``axis * angle``; ``axis_angle`` keeps them apart (unit axis,

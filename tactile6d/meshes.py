@@ -1,7 +1,7 @@
 """Object meshes: loading, cleaning, unit checks, built-in primitives, collision geometry.
 
 All meshes are ``trimesh.Trimesh`` in metres, in the object's own frame (for YCB objects the frame
-of the YCB-Video mesh file, DESIGN §2).
+of the YCB-Video mesh file; docs/design.md, Conventions).
 """
 
 from __future__ import annotations

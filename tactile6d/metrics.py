@@ -1,4 +1,4 @@
-"""Pose-error metrics (DESIGN §6): positional error, ADI (ADD-S), ADI-AUC, and top-k summaries.
+"""Pose-error metrics: positional error, ADI (ADD-S), ADI-AUC, and top-k summaries (docs/design.md, The metrics).
 
 Every distance is in metres; the evaluation converts to centimetres for display. A pose is a 4x4
 ``T_world_object``; batches of estimates have shape (..., 4, 4) and are compared with one true pose.
@@ -41,8 +41,8 @@ def adi(
     pose. This is Hinterstoisser et al.'s ADI (ACCV 2012), the BOP toolkit's ``adi`` and the paper's
     own evaluation code (``optimization/bop_pose_error.py`` of hsp-iit/multi-tactile-6d-estimation).
     The other direction (over the points at the estimate) is not the same number when the point set
-    is uneven; it differs by a few per cent, more on bad poses. It is 0 for any pose that maps the
-    point set onto itself, so symmetric objects are not penalised.
+    is uneven (docs/design.md, The metrics). It is 0 for any pose that maps the point set onto itself,
+    so symmetric objects are not penalised.
 
     Computed in the object frame, ``min_j || T_est^-1 T_gt x_i - x_j ||`` (rigid motions keep
     distances), so one tree over the model points (``model_tree``; built here if not given) serves
@@ -118,7 +118,7 @@ def auc_vocap_closed_form(
     With d_(1) <= ... <= d_(m) the m distances within ``threshold`` and d_(0) = 0, the VOCap area is
     ``sum_{k=1..m} (d_(k) - d_(k-1)) k/n + (D - d_(m)) m/n`` with D = max_distance. Summing by parts,
     ``sum_k k (d_(k) - d_(k-1)) = m d_(m) - sum_{k<m} d_(k)``, so the area is
-    ``(m D - sum_{k<m} d_(k)) / n``; divided by D = 0.1 this is DESIGN §6's
+    ``(m D - sum_{k<m} d_(k)) / n``; divided by D = 0.1 this is
     ``(m - 10 * sum of the finite d except the largest) / n``.
     """
     if not 0 < threshold <= max_distance:

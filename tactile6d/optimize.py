@@ -1,4 +1,4 @@
-"""Pose hypotheses from tuples of database points (DESIGN §1 step 6).
+"""Pose hypotheses from tuples of database points (docs/design.md, The method).
 
 A tuple j pairs each sensor's contact point ``s_i`` (world, m) with a database point ``p_ij`` (object
 frame, m). A pose ``T = [R, t]`` (``T_world_object``) is fitted to the loss of the paper's reference
@@ -38,15 +38,10 @@ is E_n, so the ranking prefers hypotheses whose normals agree.
 
 Both return ``PoseHypotheses``: poses (P, 4, 4) float64, losses (P,) m, tuple_index (P,).
 
-Measured (synthetic: points on a 10 x 6 x 16 cm box, random poses, correspondences with 1-3 mm noise,
-40 scenes per L; median of the best hypothesis' loss / translation error / rotation error):
-L = 3: fast 0.93 mm / 1.6 mm / 2.3 deg, gd 5.3 mm / 5.0 mm / 3.0 deg; L = 4: fast 1.0 / 1.1 / 1.4,
-gd 5.5 / 4.7 / 2.2; L = 1, 2 (pose not identifiable): fast at the loss's lower bound, gd 1.8 and
-4.1 mm above it. The fast loss was <= the gd loss in every scene, hence the default. With exact
-correspondences and a start near the answer, gd ends in a limit cycle about 5 mm / 0.7 deg wide, in
-float32 and float64 alike: the gradient of a plain distance has unit norm, so each step moves t by
-up to gain_t (1 cm). Time on the shared 2-core machine: fast, 5000 tuples, 5 IRLS steps, ~0.1 s;
-gd, 47160 poses x 700 steps, 14-16 s (1 or 2 JAX CPU devices: no gain under that load).
+``fast`` is the default: on synthetic scenes its loss was never above gd's, and it is much faster
+(figures: docs/speed.md). gd does not settle on the minimum: the gradient of a plain distance has unit
+norm, so each step moves t by up to gain_t (1 cm), and even with exact correspondences and a start near
+the answer gd ends in a limit cycle, in float32 and float64 alike.
 """
 
 from __future__ import annotations

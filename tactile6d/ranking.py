@@ -1,4 +1,4 @@
-"""Collision-aware ranking of pose hypotheses (DESIGN §1 step 7).
+"""Collision-aware ranking of pose hypotheses (docs/design.md, The method).
 
 Score ``R_j = E_j + max_i d_ij``: the optimiser's loss plus the deepest penetration of the object at
 pose j into any sensor's body. Near-duplicate poses (translations within ``tol_translation`` and

@@ -1,6 +1,6 @@
 """Refining ranked pose hypotheses against the object's surface (not in the paper; ``rank.refine``).
 
-The optimiser fits each pose to database points, which lie 4-7 mm apart, so even the right tuple
+The optimiser fits each pose to database points, which lie millimetres apart, so even the right tuple
 leaves a few millimetres of error. Refinement moves a pose so that every sensor's contact point
 (``sensor.contact_points``) lies on the object's surface, ``offset`` outside it, and (weight
 ``normal_weight``) every sensor's contact normal (its -x axis, ``sensor.contact_normals``) matches
@@ -16,6 +16,12 @@ iteration re-matches, then takes one damped, robustly weighted (Cauchy, 2 mm and
 (a weak prior anchoring the pose to its start keeps directions the contacts leave free in place;
 each step is clipped to 5 mm and 5 deg); all poses are refined together, vectorised. The surface is a dense,
 fixed, area-uniform sample with face normals (``contact.sample_surface``, 1 mm spacing).
+
+With the contact patches read from the images (``rank.refine_patch_points``), the points of each patch's
+pressed gel, which lie on the object's surface, join the fit as further point-to-plane rows (matched to
+their nearest sample, robustly weighted like the contacts); one sensor's patch points together weigh
+``rank.refine_patch_weight`` times its contact point. A patch spans millimetres of surface, so it also
+fixes how the surface is tilted and curved there, which one point cannot.
 
 Three contact points alone leave three degrees of freedom (each point-to-plane residual is one
 equation); the normal term adds two equations per sensor, which fixes the pose for L >= 2 and also
@@ -86,6 +92,8 @@ def refine_poses(
     normal_weight: float = 0.01,
     offset: float = 0.0,
     k: int = 32,
+    patch_points: np.ndarray | None = None,
+    patch_weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """Refine poses (P, 4, 4) so the sensors touch the surface (module docstring) -> (P, 4, 4).
 
@@ -93,6 +101,10 @@ def refine_poses(
     points, in the object frame (``contact.SurfaceSamples``); sensor_points (L, 3), sensor_normals
     (L, 3) outward unit normals, world frame; normal_weight in m/rad (0: points only); offset (m) how
     far outside the surface the contact points should sit (a number, or (L,) one per sensor); k samples considered per match.
+
+    patch_points (M, 3), world frame, with patch_weights (M,): further points known to lie on the
+    surface (the pressed gel of the observed contact patches, ``Contacts.patch_points``), each fitted
+    point-to-plane to its nearest surface sample with residual weight ``patch_weights``.
     """
     T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
     n_poses, n_sensors = T.shape[0], s.shape[0]
@@ -101,6 +113,10 @@ def refine_poses(
     w = float(normal_weight)
     prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
     moved = np.zeros((n_poses, 6))  # accumulated steps (local frame, first order)
+    has_patch = patch_points is not None and len(patch_points) > 0
+    if has_patch:
+        extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
+        extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
     for _ in range(int(n_iterations)):
         q, u = _local(T, s, n)
         c, m = _match(surface, q, u, w, k)
@@ -112,6 +128,16 @@ def refine_poses(
         rho_d = 1.0 / (1.0 + (r_d / _ROBUST_DISTANCE) ** 2)
         JtJ = np.einsum("pl,pla,plb->pab", rho_d, J_d, J_d)
         Jtr = np.einsum("pl,pla,pl->pa", rho_d, J_d, r_d)
+        if has_patch:
+            qp = np.einsum("pba,pmb->pma", T[:, :3, :3], extra[None] - T[:, None, :3, 3])  # (P, M, 3), object frame
+            _, idx = surface.tree.query(qp.reshape(-1, 3))
+            cp = surface.points[idx].reshape(qp.shape)
+            mp = surface.normals[idx].reshape(qp.shape)
+            r_p = np.sum(mp * (qp - cp), axis=-1)  # (P, M)
+            J_p = np.concatenate([-mp, np.cross(mp, qp)], axis=-1)
+            rho_p = extra_w / (1.0 + (r_p / _ROBUST_DISTANCE) ** 2)
+            JtJ += np.einsum("pm,pma,pmb->pab", rho_p, J_p, J_p)
+            Jtr += np.einsum("pm,pma,pm->pa", rho_p, J_p, r_p)
         if w > 0:
             # Normal rows: r = w (u - m), dr/domega = w [u]x (u' = u + u x omega), dr/dv = 0.
             r_n = w * (u - m)  # (P, L, 3)

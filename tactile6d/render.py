@@ -1,4 +1,4 @@
-"""A fast DIGIT tactile-image simulator that follows TACTO's optical model (DESIGN §2b).
+"""A fast DIGIT tactile-image simulator that follows TACTO's optical model.
 
 The model, in the DIGIT frame of ``digit.STL`` (metres):
 
@@ -20,8 +20,8 @@ triangles that can lie in front of the gel, and shades only the pixels they cove
 difference image is exactly zero.
 
 The light scale ``light_intensity`` is not TACTO's nominal 1: at 1 every surface in front of the camera
-saturates to white. 0.0041 was fitted to the paper's 120 TACTO images (median Pearson correlation of the
-difference images 0.96, flat between 0.0040 and 0.0042); see ``tactile6d fidelity``.
+saturates to white. 0.0041 was fitted to the paper's 120 TACTO images by the Pearson correlation of the
+difference images (``tactile6d fidelity``; figures in docs/simulator.md).
 
 Channel order: the background is taken as OpenCV reads it (BGR), the way TACTO takes it, and flipped to
 RGB inside; output images are RGB (red light in channel 0), the order of the paper's PNG files.
@@ -137,9 +137,9 @@ def mesh_arrays(mesh: trimesh.Trimesh | MeshArrays) -> MeshArrays:
 def _transform_rows(R: np.ndarray, t: np.ndarray | None, rows: np.ndarray) -> np.ndarray:
     """R (3, 3) @ rows (3, m) (+ t (3,)) -> (3, m), as elementwise row arithmetic.
 
-    NumPy hands ``@`` with a 3-long inner dimension to multithreaded OpenBLAS, which on a loaded 2-core
-    machine, with the renderer's worker processes beside it, took 60-100 ms for 150k vertices instead
-    of 2 ms; the row form takes about 3 ms whatever the load.
+    NumPy hands ``@`` with a 3-long inner dimension to multithreaded OpenBLAS, which slows down badly on
+    a loaded machine with the renderer's worker processes beside it; the row form needs no BLAS call and
+    does not depend on the load (timings: docs/simulator.md).
     """
     out = np.empty(rows.shape, dtype=rows.dtype)
     for i in range(3):
@@ -317,8 +317,8 @@ class DigitRenderer:
     odd Gaussian kernel of the difference image. diff_scale: TACTO's 0.5. light_intensity: see the module
     docstring. max_press (m): deeper presses raise InputError (the object would be inside the body).
     render_step: cast one ray per ``render_step`` x ``render_step`` pixel block and upsample (1 = every
-    pixel; 2, the default, is 4x faster and differs from 1 by 0.08 grey levels on average, 4 at the
-    99.9th percentile, on YCB contacts; the mask and depth are then blocky by 2 pixels). force: TACTO's
+    pixel; 2, the default, casts a quarter of the rays, and the mask and depth are then blocky by 2
+    pixels; its speed and difference from 1: docs/simulator.md). force: TACTO's
     normal force in [0, 100]; it moves the object toward the camera by force / 100 x ``max_deformation``
     (0 by default: the shift is negligible in the paper's images). workers: processes for
     ``render_many``. strict: raise InputError when the object is inside the sensor body (``inside_body``,
@@ -591,7 +591,7 @@ def add_noise(image: np.ndarray, noise_std: float, seed) -> np.ndarray:
 
     seed: int, SeedSequence or None (fresh entropy). The same (image, noise_std, seed) always gives the
     same output on the same OpenCV build, so a stored noise-free image and its seed reproduce a noisy
-    one exactly (tactile6d.database). OpenCV draws the noise (3x faster than NumPy's generator here),
+    one exactly (tactile6d.database). OpenCV draws the noise (faster than NumPy's generator),
     seeded from ``seed`` through a SeedSequence; this reseeds OpenCV's per-thread global RNG. Truncating
     ``a + n`` equals rounding ``a + n - 0.5``, which is what OpenCV's saturating add does with noise of
     mean -0.5. noise_std <= 0 returns the image unchanged.

@@ -38,7 +38,7 @@ from tactile6d.sensor import (
     sensor_poses_touching,
 )
 
-# The paper's ground truth for all 40 triplets (DESIGN §5).
+# The paper's ground truth for all 40 triplets.
 CADDEO2023_T_WORLD_OBJECT = make_pose(np.eye(3), [0.1, 0.0, 0.2])
 
 

@@ -1,9 +1,9 @@
-"""Selecting candidate L-tuples of database points, one point per sensor (DESIGN §1 steps 4, 5 and 8).
+"""Selecting candidate L-tuples of database points, one point per sensor (docs/design.md, The method).
 
-Step 4, tactile-based selection: sensor i keeps the database points whose latent angle is within
+Tactile-based selection: sensor i keeps the database points whose latent angle is within
 ``delta_h`` of its image's angle, Omega_i = {j : |a_db[j] - a_obs[i]| < delta_h}.
 
-Step 5, distance-based selection: a tuple (j_1, ..., j_L) in Omega_1 x ... x Omega_L is kept when the
+Distance-based selection: a tuple (j_1, ..., j_L) in Omega_1 x ... x Omega_L is kept when the
 mean over sensor pairs of ``| ||P[j_a] - P[j_b]|| - ||s_a - s_b|| |`` is below ``delta_d``. The product
 is never materialised: every pair's error is at most the *sum* of the pair errors, which is below
 ``n_pairs * delta_d``, so the tuples are grown one sensor at a time from the rows of pair-error tables
@@ -22,10 +22,10 @@ and ``DistanceSelection.capped`` says so.
 
 Rule ``best_n`` (``select.delta_d_rule: best_n``, not the paper's): keep exactly the ``n_max`` tuples
 of smallest mean error (ties by index order), whatever threshold that takes. The paper's rule
-usually stops at delta_d = 0.1 mm with a few hundred tuples, while database points are 4-7 mm apart,
-so the tuple of the points nearest the true contacts (error 1-3 mm) is rarely kept. The threshold is
-found by doubling from ``step_up`` then bisecting, each probe a pruned join that stops once it has
-seen more than 4 ``n_max`` tuples; the product is never materialised.
+usually stops at a delta_d far below the spacing of the database points (docs/design.md, The
+method and Beyond the paper), so the tuple of the points nearest the true contacts is rarely kept.
+The threshold is found by doubling from ``step_up`` then bisecting, each probe a pruned join that
+stops once it has seen more than 4 ``n_max`` tuples; the product is never materialised.
 
 Normal consistency (``select.normal_tol_deg``, optional): each sensor's +x axis is the inward surface
 normal at its contact, so the database normals of a plausible tuple must be carried onto the sensors'
@@ -36,10 +36,7 @@ database side (object frame) and on the sensors' side (world). Pairs that fail a
 pair tables (pruned in the join), and every surviving tuple is checked again exactly in float64, as the
 brute force does, so both still return the same set.
 
-Step 8, the baseline, is the same with Omega_i = all M points: ``all_points_omegas``.
-
-Measured (2-core machine shared with other jobs, load average 7-8; M = 2000 YCB surface points, L = 3,
-N = 5000): |Omega_i| ~ 300: 0.03-0.06 s; baseline, 8e9 triples: 0.34-0.72 s, peak RSS ~270 MB.
+The baseline is the same with Omega_i = all M points: ``all_points_omegas``. Timings: docs/speed.md.
 
 Units: metres for points and thresholds, radians for latent angles.
 """

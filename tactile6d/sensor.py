@@ -1,8 +1,9 @@
-"""The DIGIT sensor's geometry, in the frame of ``digit.STL`` (DESIGN §2), and how to place one on a surface.
+"""The DIGIT sensor's geometry, in the frame of ``digit.STL``, and how to place one on a surface.
 
 The camera looks along +x. The gel is a 20 mm (y) x 30 mm (z) patch centred at ``GEL_CENTER`` that bulges
 toward the object. A sensor touches a surface point ``p`` with outward normal ``n`` when its +x axis is
 ``-n``; the paper's "contact point" (landmark) ``CONTACT_POINT`` then lies on ``p`` or just outside it.
+Frames and placement: docs/design.md, Conventions.
 """
 
 from __future__ import annotations
@@ -36,10 +37,10 @@ def sensor_poses_touching(
     points (..., 3), normals (..., 3) outward, rolls (...) radians, depths (...) metres -> T (..., 4, 4),
     ``T_surfaceframe_sensor``.
 
-    Rule (documented in the README): the sensor's +x axis is ``-normal``. At roll 0 its y and z axes
+    Rule (docs/design.md, Conventions): the sensor's +x axis is ``-normal``. At roll 0 its y and z axes
     come from ``geometry.orthonormal_frame(-normal)``; ``roll`` turns the sensor about its +x axis.
     The gel apex ``GEL_CENTER`` is placed ``depth`` inside the surface along ``-normal`` (the default
-    1.8 mm matches the median 1.86 mm imprint depth of the paper's triplets), so the contact point
+    1.8 mm is about the median imprint depth of the paper's triplets), so the contact point
     ``CONTACT_POINT`` lies ``2 mm - depth`` outside the surface.
     """
     points = np.asarray(points, dtype=np.float64)

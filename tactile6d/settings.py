@@ -138,6 +138,8 @@ class RankSettings:
     refine_iterations: int
     refine_normal_weight: float
     refine_offset: float
+    refine_patch_points: int
+    refine_patch_weight: float
     agreement_weight: float
     agreement_step: int
     agreement_free_margin: float
@@ -155,6 +157,9 @@ class RankSettings:
             raise ConfigError(f"rank.candidates ({out.candidates}) must be >= rank.top_k ({out.top_k})")
         if out.refine and (out.refine_iterations < 1 or out.refine_normal_weight < 0):
             raise ConfigError("rank.refine needs refine_iterations >= 1 and refine_normal_weight >= 0")
+        if out.refine_patch_points < 0 or out.refine_patch_weight < 0:
+            raise ConfigError(f"rank.refine_patch_points and rank.refine_patch_weight must be >= 0, got "
+                              f"{out.refine_patch_points}, {out.refine_patch_weight}")
         weights = (out.agreement_weight, out.agreement_free_margin, out.agreement_mask_weight,
                    out.agreement_depth_weight, out.agreement_free_area_weight, out.agreement_free_depth_weight)
         if min(weights) < 0:

@@ -1,4 +1,4 @@
-"""Superquadrics, the object-agnostic shapes the autoencoder is trained on (DESIGN §1 step 2).
+"""Superquadrics, the object-agnostic shapes the autoencoder is trained on (docs/design.md, The method).
 
 A superquadric with semi-axes (a, b, c) and exponents (e1, e2) is the surface ``F(x, y, z) = 1`` of the
 inside-outside function

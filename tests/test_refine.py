@@ -78,3 +78,32 @@ def test_refinement_is_vectorised_over_poses_and_keeps_a_right_pose():
     np.testing.assert_allclose(out[:, :3, 3], np.repeat(T_true[None, :3, 3], 7, axis=0), atol=5e-4)
     assert np.linalg.norm(out[0, :3, 3] - T_true[:3, 3]) < 1e-6
     assert refine.refine_poses(surface, np.zeros((0, 4, 4)), s, n).shape == (0, 4, 4)
+
+
+def _face_patch(centre, normal, half_width=0.008, n=5):
+    """An n x n grid of points on the face through ``centre`` with outward ``normal`` (a patch's pressed gel)."""
+    normal = np.asarray(normal, dtype=float)
+    a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(normal, a)
+    grid = np.linspace(-half_width, half_width, n)
+    return np.array([centre + u * a + v * b for u in grid for v in grid])
+
+
+def test_patch_points_fix_the_rotation_that_three_contact_points_leave_free():
+    rng = np.random.default_rng(7)
+    surface = _surface("box")
+    points, normals = CONTACTS["box"]
+    T_true = g.make_pose(g.random_rotations(1, rng)[0], [0.1, 0.0, 0.2])
+    s = points @ T_true[:3, :3].T + T_true[:3, 3]
+    n = normals @ T_true[:3, :3].T
+    patch = np.concatenate([_face_patch(p, m) for p, m in zip(points, normals)]) @ T_true[:3, :3].T + T_true[:3, 3]
+    weights = np.full(len(patch), 1.0 / np.sqrt(25))
+    wrong = T_true @ g.make_pose(g.rotvec_to_rotmat(np.radians(4.0) * np.array([0.6, 0.0, 0.8])), [0.002, -0.002, 0.001])
+    # Three point-to-plane residuals (no normal term) leave three degrees of freedom to the prior.
+    points_only = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10, normal_weight=0.0)[0]
+    assert np.degrees(g.rotation_angle(points_only[:3, :3], T_true[:3, :3])) > 1.0
+    with_patch = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10, normal_weight=0.0,
+                                     patch_points=patch, patch_weights=weights)[0]
+    assert np.degrees(g.rotation_angle(with_patch[:3, :3], T_true[:3, :3])) < 0.3
+    assert np.linalg.norm(with_patch[:3, 3] - T_true[:3, 3]) < 5e-4

@@ -4,7 +4,7 @@ Runs the online estimator (``tactile6d.estimator``) on the paper's triplets (L =
 whose artifacts exist in ``--artifacts`` (or of the ``--object`` ones), in three configurations: the
 default (the composed config with any overrides given), the baseline (``select.method=baseline``) and
 the faithful path (``preset=paper``: the paper's method end to end, with its 700-step gradient
-descent, on the first ``--faithful-scenes`` triplets only since it takes ~20 s each). Each configuration is warmed up on
+descent, on the first ``--faithful-scenes`` triplets only since it is slow; docs/speed.md). Each configuration is warmed up on
 one triplet first (library start-up, JAX compilation), then each triplet is timed once.
 
 Prints the per-step medians of each configuration, then, as its last line, one JSON object with

@@ -75,7 +75,12 @@ def rank(
     if settings.refine:
         s, n = contacts.points, contacts.normals
         w, offset = float(settings.refine_normal_weight), contacts.offsets(settings.refine_offset)
-        candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w, offset)
+        extra, owners = contacts.patch_points(T_world_sensors, int(settings.refine_patch_points))
+        # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
+        per_sensor = np.bincount(owners, minlength=len(s))[owners] if len(owners) else np.zeros(0)
+        extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
+        candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w, offset,
+                                             patch_points=extra, patch_weights=extra_w)
         distance, angle = refinement.surface_losses(surface, candidates, s, n, w, offset)
         new_losses = distance + w * angle
         depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
