@@ -30,6 +30,7 @@ from tactile6d.config import compose_config
 from tactile6d.errors import NoMatch
 from tactile6d.estimator import Estimator
 from tactile6d.io import read_artifact
+from tactile6d.optimize import use_cpu_devices_for
 
 
 def proxy_scenes(artifacts: str, objects: list[str], per_object: int, seed: int) -> dict:
@@ -61,6 +62,7 @@ def main() -> int:
     args = parser.parse_args()
 
     cfg = compose_config([f"select.method={args.method}", *args.overrides])
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     if args.proxy:
         objects = args.objects or [o for o in cfg.objects.names if layout.object_file(args.artifacts, o).is_file()]
         data = proxy_scenes(args.artifacts, objects, args.proxy, args.proxy_seed)

@@ -24,6 +24,7 @@ from tactile6d.config import parse_stage_args
 from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.estimator import Estimator
 from tactile6d.io import read_artifact, write_json
+from tactile6d.optimize import use_cpu_devices
 from tactile6d.sensor_subsets import evaluate_sensor_count
 
 SECTIONS = ("select", "optimize", "rank")
@@ -79,11 +80,15 @@ def main(argv: list[str] | None = None) -> int:
     unique = list(first_with.values())
 
     jobs = [(OmegaConf.to_container(variants[n], resolve=True), args.scene_set, n) for n in unique]
+    # JAX's device count is set once per process, before any variant runs (the paper's runs the gd solver).
+    devices = (int(cfg.optimize.cpu_devices),)
     if workers == 1 or len(jobs) == 1:
+        use_cpu_devices(*devices)
         computed = [evaluate_variant(*job, progress=True) for job in jobs]
     else:
         # spawn, not fork: the parent must not hand its HDF5 handles and torch threads to the workers
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=use_cpu_devices, initargs=devices) as pool:
             computed = list(pool.map(evaluate_variant, *zip(*jobs), [False] * len(jobs)))
     by_name = dict(zip(unique, computed))
     results = {name: by_name[first_with[estimator_settings_key(c)]] for name, c in variants.items()}

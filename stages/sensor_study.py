@@ -18,6 +18,7 @@ from tactile6d import evaluation, layout
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
 from tactile6d.estimator import Estimator
+from tactile6d.optimize import use_cpu_devices_for
 from tactile6d.io import read_artifact, write_json, write_text
 from tactile6d.sensor_subsets import evaluate_sensor_count
 
@@ -40,6 +41,7 @@ def plot_table(results: dict, n_sensors: int) -> str:
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0],
                                  add_arguments=lambda p: p.add_argument("--scene-set", required=True))
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = cfg.paths.artifacts_dir
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]

@@ -1,7 +1,7 @@
 """Loading the configuration a stage or command runs with.
 
 Two sources give the same tree:
-- the Hydra tree in ``conf/`` (composed with Hydra's compose API, so group overrides such as
+- the Hydra tree in ``conf/`` (a checkout's, or the copy installed with the package) (composed with Hydra's compose API, so group overrides such as
   ``objects=primitives`` work), used when a stage runs alone: ``python -m stages.X key=value``;
 - a composed ``params.yaml`` (``--params params.yaml``), used under DVC, because ``dvc exp run -S``
   writes its overrides there, not into ``conf/``.
@@ -18,7 +18,15 @@ from omegaconf.errors import OmegaConfBaseException
 from tactile6d.errors import ConfigError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-CONF_DIR = REPO_ROOT / "conf"
+
+
+def _conf_dir() -> Path:
+    """A checkout's ``conf/``; in an installed package, the copy of it installed as ``tactile6d/conf``."""
+    checkout = REPO_ROOT / "conf"
+    return checkout if (checkout / "config.yaml").is_file() else Path(__file__).resolve().parent / "conf"
+
+
+CONF_DIR = _conf_dir()
 
 
 def compose_config(overrides: list[str] | tuple[str, ...] = (), conf_dir: Path | str = CONF_DIR) -> DictConfig:

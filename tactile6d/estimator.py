@@ -105,6 +105,10 @@ class Estimator:
     no_contact (320, 240, 3) uint8 RGB, the sensors' no-contact image, and patch_model, the contact-patch
     calibration (``patch.PatchModel``), needed by ``select.contacts=patch``; mesh: the object
     (``trimesh.Trimesh``), needed by ``rank.agreement_weight`` > 0 (render-and-compare).
+
+    The ``gd`` solver splits its batch over JAX's CPU devices, a process-wide setting that must be made
+    before JAX first runs: a program that uses it calls ``optimize.use_cpu_devices_for(solver,
+    cpu_devices)`` at its start (the estimator does not change it).
     """
 
     def __init__(
@@ -154,8 +158,6 @@ class Estimator:
         if not isinstance(pieces, collision.ConvexPieces):
             pieces = collision.vertices_to_pieces(list(pieces))
         self.penetration_model = collision.PenetrationModel(pieces)
-        if self.settings.optimize.solver == "gd":
-            optimization.use_cpu_devices(self.settings.optimize.cpu_devices)
 
     @classmethod
     def from_artifacts(

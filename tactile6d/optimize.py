@@ -236,6 +236,13 @@ def use_cpu_devices(n: int) -> int:
     return jax.local_device_count()
 
 
+def use_cpu_devices_for(solver: str, cpu_devices: int) -> None:
+    """At program start: ``use_cpu_devices(cpu_devices)`` when the ``gd`` solver will run (the ``fast``
+    solver does not use JAX). The device count is process-wide, so programs set it, not the library."""
+    if solver == "gd":
+        use_cpu_devices(cpu_devices)
+
+
 def _gd_program(n_steps: int, gain_t: float, gain_r: float):
     """A jitted function (xi (6, B), p (L, 3, B), s (L, 3)) -> xi after n_steps of the paper's GD.
 

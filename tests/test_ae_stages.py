@@ -18,6 +18,8 @@ from tactile6d import autoencoder, layout
 from tactile6d.errors import ArtifactError
 from tactile6d.io import read_artifact
 
+pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
+
 
 @pytest.fixture(scope="module")
 def artifacts(tmp_path_factory, data_dir):

@@ -143,6 +143,7 @@ def make_estimator(rendered, **overrides):
     )
 
 
+@pytest.mark.slow
 def test_patch_contacts_lie_on_the_surface_where_landmarks_do_not(rendered):
     T, images = rendered["T_world_sensors"], rendered["images"]
     read = make_estimator(rendered, **{"select.contacts": "patch"}).contacts(T, images)
@@ -158,6 +159,7 @@ def test_patch_contacts_lie_on_the_surface_where_landmarks_do_not(rendered):
             assert distance.max() > 1e-3  # tilted and off-centre: the landmark is millimetres off the surface
 
 
+@pytest.mark.slow
 def test_patch_contacts_recover_the_pose_of_tilted_off_centre_sensors(rendered):
     T, images = rendered["T_world_sensors"], rendered["images"]
     dt_patch, dr_patch = pose_errors(make_estimator(rendered, **{"select.contacts": "patch"}).estimate(T, images).best,
@@ -169,6 +171,7 @@ def test_patch_contacts_recover_the_pose_of_tilted_off_centre_sensors(rendered):
     assert dt_patch < 0.5 * dt_landmark
 
 
+@pytest.mark.slow
 def test_fitting_the_patches_pressed_gel_brings_the_rotation_closer(rendered):
     T, images = rendered["T_world_sensors"], rendered["images"]
     point, dense = ({"select.contacts": "patch", "rank.refine_patch_points": n} for n in (0, 32))
@@ -179,6 +182,7 @@ def test_fitting_the_patches_pressed_gel_brings_the_rotation_closer(rendered):
     assert dr_dense < 0.5 * dr_point and dt_dense < 0.01
 
 
+@pytest.mark.slow
 def test_landmark_contacts_have_no_patch_to_compare_with_and_rank_without_it(rendered):
     T, images = rendered["T_world_sensors"], rendered["images"]
     plain = make_estimator(rendered).estimate(T, images)
@@ -190,6 +194,7 @@ def test_landmark_contacts_have_no_patch_to_compare_with_and_rank_without_it(ren
 # --- render-and-compare in the rank step ------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_render_and_compare_ranks_the_true_pose_first_where_the_point_loss_ties():
     """A box touched on its top and bottom faces near an edge and on a side: sliding it 3 mm along the
     edge's normal keeps every contact on the same faces (same loss, no penetration); only the patches

@@ -145,6 +145,7 @@ def write_scene_set(artifacts, scene_folder, name="tiny"):
     return scenes
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["baseline", "ours"])
 def test_stages_agree_with_the_online_estimator(request, artifacts, scene, method, monkeypatch):
     if method == "ours":

@@ -160,6 +160,7 @@ def test_any_number_of_sensors_works(world, n_sensors):
         assert pose_errors(result.best, T_TRUE)[0] < 0.002
 
 
+@pytest.mark.slow
 def test_faithful_gd_solver_runs_through_the_estimator(world):
     e = make_estimator(world, **{"select.N": 20, "optimize.solver": "gd", "optimize.n_steps": 30,
                                  "optimize.n_translations": 2, "optimize.normal_weight": 0.0})
@@ -376,6 +377,7 @@ def test_inconsistent_delta_h_settings_are_a_config_error_not_a_failed_estimate(
         settings(**bad)
 
 
+@pytest.mark.slow
 def test_normal_switches_apply_up_to_normal_max_sensors(world, off_grid):
     T, images = off_grid["T_world_sensors"], world["images"]
     on = {"select.normal_tol_deg": 45, "optimize.normal_weight": 0.01, "rank.refine": "false"}

@@ -19,6 +19,7 @@ def artifacts(tmp_path_factory, data_dir):
     return root
 
 
+@pytest.mark.slow
 def test_caddeo2023_import(artifacts):
     args = ["--scene-set", "caddeo2023", f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box,004_sugar_box]"]
     assert make_scenes.main(args) == 0

@@ -127,6 +127,7 @@ def test_gd_step_is_the_gradient_of_the_loss():
     np.testing.assert_allclose(grad, numeric, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_gd_converges_with_small_gains_and_cycles_within_a_bound_with_the_papers():
     # With plain distances every residual's gradient has unit norm, so at the paper's gains
     # (0.01, 1) GD ends in a limit cycle millimetres wide; smaller gains converge tightly.
@@ -172,6 +173,7 @@ def test_tuples_to_poses_shapes_and_tuple_index():
         opt.tuples_to_poses(points, s, tuples[:, :2], "fast", rng)
 
 
+@pytest.mark.slow
 def test_gd_splits_over_two_cpu_devices_with_the_same_result():
     # A fresh interpreter, since JAX's device count is fixed once it has run anything.
     code = textwrap.dedent(

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
+
 REPO = Path(__file__).resolve().parent.parent
 
 # 12 database-style contacts on the sugar box: two of them (5 and 9) hit Embree's rounding differences.

@@ -36,6 +36,7 @@ def artifacts(tmp_path_factory, data_dir):
     return root
 
 
+@pytest.mark.slow
 def test_every_sensor_count_and_method_is_reported(artifacts, data_dir, monkeypatch):
     monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
     assert sensor_study.main(["--scene-set", "tiny", f"paths.artifacts_dir={artifacts}", "select.N=200"]) == 0
@@ -59,6 +60,7 @@ def test_sensor_subsets():
         sensor_subsets(3, 4)
 
 
+@pytest.mark.slow
 def test_ablation_reports_every_variant_and_sensor_count(artifacts, data_dir, monkeypatch, tmp_path):
     monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
     # delta_h = pi: every database point passes the tiny autoencoder's angles, as for the baseline
@@ -93,6 +95,7 @@ def test_ablation_variant_overrides_only_the_estimator_sections():
         ablation.variant_config(cfg, "x", OmegaConf.create({"render": {"width": 1}}))
 
 
+@pytest.mark.slow
 def test_the_ablation_paper_variant_is_the_paper_preset():
     paper = compose_config(["preset=paper"])
     variant = ablation.variant_config(compose_config(), "paper", compose_config().ablation.variants["paper"])

@@ -12,6 +12,8 @@ from tactile6d.errors import ArtifactError, ConfigError
 from tactile6d.io import read_artifact
 from tactile6d.render import DigitRenderer, load_background_bgr
 
+pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
+
 N, SHAPES = 12, 3
 
 

@@ -28,6 +28,7 @@ from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import ArtifactError, InputError
 from tactile6d.estimator import STEPS, Estimator
 from tactile6d.io import read_scene_dir
+from tactile6d.optimize import use_cpu_devices
 from tactile6d.settings import Settings
 
 
@@ -83,6 +84,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
 
     cfg = compose_config(args.overrides)
+    use_cpu_devices(int(cfg.optimize.cpu_devices))  # the faithful configuration runs the gd solver
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     objects = args.object or list(cfg.objects.names)
     variants = {

@@ -46,6 +46,7 @@ import numpy as np
 from tactile6d.config import CONF_DIR, compose_config
 from tactile6d.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.estimator import Estimate, Estimator
+from tactile6d.optimize import use_cpu_devices_for
 from tactile6d.geometry import pose_to_line
 from tactile6d.io import read_scene_dir, read_tactile_image
 
@@ -303,6 +304,7 @@ def main(argv: list[str]) -> int:
     args = parse_args(argv)
     overrides = list(args.overrides) + ([f"rank.top_k={args.top}"] if args.top is not None else [])
     cfg = compose_config(overrides)
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     known = KnownObjects(artifacts, cfg)
     if args.object != AUTO:

@@ -1,0 +1,1 @@
+"""One module per ``tactile6d`` sub-command; each exposes ``main(argv: list[str]) -> int``."""

@@ -1,0 +1,277 @@
+"""The online pose estimator: one object's cached artifacts in, ranked ``T_world_object`` out.
+
+``Estimator`` holds one object's arrays and runs the four steps of ``tactile6d.steps`` (encode, select,
+optimize, rank); ``Estimator.from_artifacts`` loads them from an artifacts directory (no DVC needed), the
+plain constructor takes arrays (tests, robots with their own storage). ``Estimate`` is the result.
+
+Randomness: every call draws from fresh generators seeded by ``select.seed`` (used only when L = 1) and
+``optimize.seed`` (each tuple's random rotation), so the same input always gives the same estimate.
+
+Units: metres, radians; poses are 4x4 float64 (``T_world_sensor``, ``T_world_object``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tactile6d import collision, layout, ranking
+from tactile6d import optimize as optimization
+from tactile6d.config import compose_config
+from tactile6d.contact import sample_surface
+from tactile6d.contacts import Contacts
+from tactile6d.errors import InputError
+from tactile6d.inputs import check_images, check_sensor_poses
+from tactile6d.object_artifacts import load_surface_normals, load_surface_points
+from tactile6d.patch import PatchModel
+from tactile6d.run_artifacts import compact_hypotheses, expand_hypotheses
+from tactile6d.settings import Settings, needs_normals
+from tactile6d.steps import encode as encode_step
+from tactile6d.steps import optimize as optimize_step
+from tactile6d.steps import rank as rank_step
+from tactile6d.steps import select as select_step
+from tactile6d.steps.select import Selection
+
+STEPS = ("encode", "select", "optimize", "rank")
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Ranked poses of one estimate, best first.
+
+    poses (K, 4, 4) ``T_world_object``; scores (K,) loss + deepest penetration (m); losses (K,) m;
+    penetrations (K, L) m; angles (L,) the images' latent angles (rad; None for the baseline);
+    contacts: the sensors' contact points and normals the estimate used (``tactile6d.contacts``);
+    selection: the selection diagnostics; n_hypotheses: poses ranked; seconds: wall-clock time per step
+    (encode, select, optimize, rank) and in total.
+    """
+
+    poses: np.ndarray
+    scores: np.ndarray
+    losses: np.ndarray
+    penetrations: np.ndarray
+    angles: np.ndarray | None
+    contacts: Contacts
+    selection: Selection
+    n_hypotheses: int
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def best(self) -> np.ndarray:
+        """The best-ranked pose (4, 4)."""
+        return self.poses[0]
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary: poses as nested lists, diagnostics as numbers."""
+        sel = self.selection
+        return {
+            "poses": self.poses.tolist(),
+            "scores": self.scores.tolist(),
+            "losses": self.losses.tolist(),
+            "penetrations": self.penetrations.tolist(),
+            "seconds": dict(self.seconds),
+            "contacts": {
+                "points": self.contacts.points.tolist(),
+                "normals": self.contacts.normals.tolist(),
+                "from_patch": self.contacts.from_patch.tolist(),
+            },
+            "selection": {
+                "angles": None if self.angles is None else self.angles.tolist(),
+                "omega_sizes": sel.omega_sizes.tolist(),
+                "delta_h": [None if np.isnan(d) else float(d) for d in sel.delta_h],
+                "widened": sel.widened.tolist(),
+                "delta_d": sel.delta_d,
+                "n_tuples": int(sel.tuples.shape[0]),
+                "capped": sel.capped,
+            },
+            "n_hypotheses": self.n_hypotheses,
+        }
+
+
+class Estimator:
+    """Pose estimation for one object.
+
+    points (M, 3) database points (object frame, m); pieces: the object's convex collision pieces
+    (``collision.ConvexPieces``, or a sequence of (V, 3) vertex arrays); db_angles (M,) the database
+    images' latent angles (rad) and encoder: images (L, 320, 240, 3) uint8 RGB -> (L,) latent angles,
+    both needed by method 'ours' only; settings: the select/optimize/rank config (``Settings``), by
+    default conf/'s; normals (M, 3) the database points' outward normals, needed by
+    ``select.normal_tol_deg`` and ``optimize.normal_weight``; surface: the object's surface samples
+    (``contact.SurfaceSamples``, or a ``trimesh.Trimesh`` to sample), needed by ``rank.refine``;
+    no_contact (320, 240, 3) uint8 RGB, the sensors' no-contact image, and patch_model, the contact-patch
+    calibration (``patch.PatchModel``), needed by ``select.contacts=patch``; mesh: the object
+    (``trimesh.Trimesh``), needed by ``rank.agreement_weight`` > 0 (render-and-compare).
+
+    The ``gd`` solver splits its batch over JAX's CPU devices, a process-wide setting that must be made
+    before JAX first runs: a program that uses it calls ``optimize.use_cpu_devices_for(solver,
+    cpu_devices)`` at its start (the estimator does not change it).
+    """
+
+    def __init__(
+        self,
+        points: np.ndarray,
+        pieces: collision.ConvexPieces | Sequence[np.ndarray],
+        db_angles: np.ndarray | None = None,
+        encoder: Callable[[np.ndarray], np.ndarray] | None = None,
+        settings: Settings | None = None,
+        normals: np.ndarray | None = None,
+        surface=None,
+        no_contact: np.ndarray | None = None,
+        patch_model: PatchModel | None = None,
+        mesh=None,
+    ):
+        self.settings = settings if settings is not None else Settings.from_cfg(_default_cfg())
+        self.points = np.asarray(points, dtype=np.float64)
+        if self.points.ndim != 2 or self.points.shape[1] != 3 or self.points.shape[0] == 0:
+            raise InputError(f"database points must be (M, 3) with M >= 1, got {self.points.shape}")
+        if db_angles is not None:
+            db_angles = np.asarray(db_angles, dtype=np.float64)
+            if db_angles.shape != self.points.shape[:1]:
+                raise InputError(f"{db_angles.shape} database angles for {self.points.shape[0]} points")
+        if self.settings.select.method == "ours" and (db_angles is None or encoder is None):
+            raise InputError("select.method=ours needs the database angles and an image encoder")
+        self.db_angles = db_angles
+        self.encoder = encoder
+        if normals is not None:
+            normals = np.asarray(normals, dtype=np.float64)
+            if normals.shape != self.points.shape:
+                raise InputError(f"{normals.shape} database normals for {self.points.shape[0]} points")
+        if needs_normals(self.settings) and normals is None:
+            raise InputError("select.normal_tol_deg / optimize.normal_weight need the database normals")
+        self.normals = normals
+        if surface is not None and not hasattr(surface, "tree"):
+            surface = sample_surface(surface)
+        if self.settings.rank.refine and surface is None:
+            raise InputError("rank.refine needs the object's surface (a mesh or contact.SurfaceSamples)")
+        self.surface = surface
+        if self.settings.select.reads_patches and (no_contact is None or patch_model is None):
+            raise InputError("select.contacts=patch needs the sensors' no-contact image and the patch calibration")
+        self.no_contact = None if no_contact is None else check_images(np.asarray(no_contact)[None], 1)[0]
+        self.patch_model = patch_model
+        if self.settings.rank.uses_agreement and self.settings.select.reads_patches and mesh is None:
+            raise InputError("rank.agreement_weight > 0 needs the object's mesh")
+        self.mesh = mesh
+        if not isinstance(pieces, collision.ConvexPieces):
+            pieces = collision.vertices_to_pieces(list(pieces))
+        self.penetration_model = collision.PenetrationModel(pieces)
+
+    @classmethod
+    def from_artifacts(
+        cls,
+        object_name: str,
+        artifacts_dir: str | Path,
+        cfg: Mapping | None = None,
+        data_dir: str | Path | None = None,
+        background: np.ndarray | None = None,
+    ) -> Estimator:
+        """Load one object's artifacts: object.h5 (collision pieces, mesh), surface.h5 (points) and, for
+        method 'ours', latents.h5 (angles), the autoencoder checkpoint and the patch calibration. cfg: the composed config
+        (default: conf/ with no overrides). ArtifactError names a missing file and the command that
+        makes it.
+
+        background: the no-contact image (320, 240, 3) uint8 RGB of the sensor whose images will be
+        estimated; the encoder and the contact patches see each image minus it. Pass your own sensor's when it is not the
+        simulated one; by default it is ``render.background`` from the data directory
+        (``steps.encode.load_background``), the background the databases and the paper's images were rendered over.
+        """
+        cfg = cfg if cfg is not None else _default_cfg()
+        settings = Settings.from_cfg(cfg)
+        points = load_surface_points(artifacts_dir, object_name)
+        pieces = rank_step.load_pieces(artifacts_dir, object_name)
+        db_angles = encoder = patch_model = None
+        if settings.select.method == "ours":
+            db_angles, latent_nc = encode_step.load_database_angles(artifacts_dir, object_name)
+            if background is None:
+                background = encode_step.load_background(cfg, data_dir)
+            background = check_images(np.asarray(background)[None], 1)[0]
+            encoder = encode_step.LatentAngleEncoder.from_checkpoint(
+                layout.ae_checkpoint(artifacts_dir), background, latent_nc
+            )
+            if settings.select.reads_patches:
+                patch_model = encode_step.load_patch_model(artifacts_dir)
+        normals = load_surface_normals(artifacts_dir, object_name) if needs_normals(settings) else None
+        mesh = rank_step.load_mesh(artifacts_dir, object_name) if settings.rank.rescores else None
+        surface = sample_surface(mesh) if settings.rank.refine else None
+        return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh)
+
+    # Each step is public so that a caller can run, time or inspect it alone.
+
+    def encode(self, images) -> np.ndarray:
+        """(L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad)."""
+        if self.encoder is None:
+            raise InputError("this estimator has no image encoder (built for the baseline)")
+        images = np.asarray(images)
+        return np.asarray(self.encoder(images), dtype=np.float64).reshape(images.shape[0])
+
+    def contacts(self, T_world_sensors, images=None) -> Contacts:
+        """The sensors' contacts (``select.contacts``): their landmarks, or each image's contact patch
+        (images (L, 320, 240, 3) uint8 RGB needed then)."""
+        T = check_sensor_poses(T_world_sensors)
+        if self.settings.select.reads_patches:
+            images = check_images(images, T.shape[0])
+        return encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model)
+
+    def select(self, contacts: Contacts, angles: np.ndarray | None = None) -> Selection:
+        """Candidate tuples for the sensors' contacts (``contacts``), given the images' angles (L,)."""
+        return select_step.select(self.points, self.db_angles, contacts, angles, self.settings.select, self.normals)
+
+    def optimize(self, contacts: Contacts, tuples: np.ndarray) -> optimization.PoseHypotheses:
+        """Pose hypotheses for tuples (T, L) of database indices."""
+        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals)
+
+    def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray,
+             contacts: Contacts | None = None) -> ranking.RankedPoses:
+        """The top-k distinct poses of (P, 4, 4) hypotheses with losses (P,), rounded first to the form
+        the optimize stage stores (``compact_hypotheses``), so that online and offline rank alike.
+        contacts: as ``contacts`` returned (default: the sensors' landmarks)."""
+        poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
+        return rank_step.rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses,
+                              self.settings.rank, self.surface, contacts, self.mesh)
+
+    def estimate(self, T_world_sensors, images=None) -> Estimate:
+        """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.
+
+        Images are required by method 'ours'; the baseline ignores them (but checks them when given).
+        """
+        start = time.perf_counter()
+        T = check_sensor_poses(T_world_sensors)
+        ours = self.settings.select.method == "ours"
+        if ours or images is not None:
+            images = check_images(images, T.shape[0])
+        seconds = {}
+        t0 = time.perf_counter()
+        angles = self.encode(images) if ours else None
+        contacts = self.contacts(T, images)
+        seconds["encode"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        chosen = self.select(contacts, angles)
+        seconds["select"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        hypotheses = self.optimize(contacts, chosen.tuples)
+        seconds["optimize"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        ranked = self.rank(T, hypotheses.poses, hypotheses.losses, contacts)
+        seconds["rank"] = time.perf_counter() - t0
+        seconds["total"] = time.perf_counter() - start
+        return Estimate(
+            poses=ranked.poses,
+            scores=ranked.scores,
+            losses=ranked.losses,
+            penetrations=ranked.penetrations,
+            angles=angles,
+            contacts=contacts,
+            selection=chosen,
+            n_hypotheses=int(hypotheses.poses.shape[0]),
+            seconds=seconds,
+        )
+
+
+def _default_cfg():
+    return compose_config()

@@ -1,0 +1,274 @@
+"""HDF5 artifacts: atomic writes, stamped with their schema and config, validated on reading.
+
+Every artifact a stage writes is one HDF5 file whose root attributes say what it is:
+``schema`` (a name from ``SCHEMAS``), ``schema_version``, ``config`` (the JSON of the config sections
+it was made with), ``tactile6d_version``. Writing goes to a temporary file beside the target and is
+renamed into place only once complete, so a crash never leaves a half-written artifact under the real
+name. Reading checks the stamp and the datasets the schema requires, and fails with one line that names
+the file, what is wrong, and the stage that makes it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from tactile6d import __version__
+from tactile6d.errors import ArtifactError
+
+
+@dataclass(frozen=True)
+class Schema:
+    """What an artifact of one kind must hold, and which stage makes it."""
+
+    name: str
+    version: int
+    stage: str
+    datasets: tuple[str, ...]
+    groups: tuple[str, ...] = field(default=())
+
+
+SCHEMAS: dict[str, Schema] = {
+    s.name: s
+    for s in [
+        # a cleaned object: mesh, collision pieces (concatenated, with offsets), metric points
+        Schema(
+            "object",
+            1,
+            "prepare_object",
+            ("vertices", "faces", "collision_vertices", "collision_faces", "collision_vertex_offsets",
+             "collision_face_offsets", "metric_points"),
+        ),
+        # M surface points with outward unit normals, in the object frame
+        Schema("surface", 1, "sample_surface", ("points", "normals", "face_index")),
+    ]
+}
+
+
+# Schemas defined next to the code that makes their artifacts, imported on first use.
+_SCHEMA_MODULES = {
+    "scenes": "tactile6d.scenes",
+    "database": "tactile6d.database",
+    "training_set": "tactile6d.database",
+    "latents": "tactile6d.autoencoder",
+    "tuples": "tactile6d.estimator",
+    "hypotheses": "tactile6d.estimator",
+    "ranked": "tactile6d.estimator",
+}
+
+
+def get_schema(name: str) -> Schema:
+    """The schema called ``name``, importing the module that defines it if needed."""
+    if name not in SCHEMAS and name in _SCHEMA_MODULES:
+        import importlib
+
+        importlib.import_module(_SCHEMA_MODULES[name])
+    if name not in SCHEMAS:
+        raise ValueError(f"unknown artifact schema {name!r}")
+    return SCHEMAS[name]
+
+
+def register_schema(schema: Schema) -> None:
+    """Add a schema (modules that define new artifact kinds call this at import time)."""
+    existing = SCHEMAS.get(schema.name)
+    if existing is not None and existing != schema:
+        raise ValueError(f"schema {schema.name!r} registered twice with different definitions")
+    SCHEMAS[schema.name] = schema
+
+
+def _remake_hint(schema: Schema) -> str:
+    return f"it is made by stage '{schema.stage}' (run `dvc repro {schema.stage}`)"
+
+
+def write_artifact(
+    path: str | os.PathLike,
+    schema: str,
+    datasets: Mapping[str, Any],
+    attrs: Mapping[str, Any] | None = None,
+    config: Mapping[str, Any] | None = None,
+    compression: str | None = None,
+) -> Path:
+    """Write an artifact atomically.
+
+    ``datasets`` maps names (``a/b`` makes groups) to arrays; ``attrs`` are extra root attributes
+    (JSON-serialisable values); ``config`` is stamped as JSON. ``compression`` ('gzip' or 'lzf')
+    applies to arrays of 2 or more dimensions, chunked along the first axis.
+    """
+    spec = get_schema(schema)
+    missing = [name for name in spec.datasets if name not in datasets]
+    if missing:
+        raise ValueError(f"artifact of schema {schema!r} lacks datasets {missing}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
+    os.close(fd)
+    try:
+        with h5py.File(tmp_name, "w") as f:
+            f.attrs["schema"] = spec.name
+            f.attrs["schema_version"] = spec.version
+            f.attrs["tactile6d_version"] = __version__
+            f.attrs["config"] = json.dumps(config or {}, sort_keys=True, default=str)
+            for key, value in (attrs or {}).items():
+                f.attrs[key] = json.dumps(value, default=str)
+            for name, value in datasets.items():
+                array = np.asarray(value)
+                if array.dtype.kind == "U":
+                    array = array.astype(h5py.string_dtype())
+                kwargs = {}
+                if compression and array.ndim >= 2 and array.size > 0:
+                    kwargs = {"compression": compression, "chunks": (1,) + array.shape[1:] if array.ndim >= 3 else True}
+                f.create_dataset(name, data=array, **kwargs)
+        os.replace(tmp_name, path)
+    except BaseException:
+        # Nothing may remain under either name when the write did not complete.
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return path
+
+
+@dataclass
+class Artifact:
+    """A validated artifact read into memory."""
+
+    path: Path
+    schema: str
+    config: dict
+    attrs: dict
+    data: dict[str, np.ndarray]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.data[name]
+
+
+def _read_datasets(group: h5py.Group, prefix: str = "") -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for key, item in group.items():
+        name = f"{prefix}{key}"
+        if isinstance(item, h5py.Group):
+            out.update(_read_datasets(item, name + "/"))
+        else:
+            value = item[()]
+            if item.dtype.kind == "O":
+                value = item.asstr()[()]
+            out[name] = value
+    return out
+
+
+def read_artifact(path: str | os.PathLike, schema: str) -> Artifact:
+    """Read and validate an artifact of the given schema; ArtifactError (one line) if anything is off."""
+    spec = get_schema(schema)
+    path = Path(path)
+    hint = _remake_hint(spec)
+    if not path.is_file():
+        raise ArtifactError(f"{path}: missing; {hint}")
+    try:
+        with h5py.File(path, "r") as f:
+            found = f.attrs.get("schema")
+            if found is None:
+                raise ArtifactError(f"{path}: not a tactile6d artifact (no schema stamp); {hint}")
+            found = found.decode() if isinstance(found, bytes) else str(found)
+            if found != spec.name:
+                raise ArtifactError(f"{path}: schema is {found!r} but {spec.name!r} was expected; {hint}")
+            version = int(f.attrs.get("schema_version", -1))
+            if version != spec.version:
+                raise ArtifactError(
+                    f"{path}: schema {spec.name!r} version {version}, this code reads version {spec.version}; {hint}"
+                )
+            missing = [name for name in spec.datasets if name not in f]
+            if missing:
+                raise ArtifactError(f"{path}: datasets {missing} missing; {hint}")
+            data = _read_datasets(f)
+            config = json.loads(f.attrs.get("config", "{}"))
+            attrs = {
+                k: json.loads(v)
+                for k, v in f.attrs.items()
+                if k not in ("schema", "schema_version", "config", "tactile6d_version")
+            }
+    except ArtifactError:
+        raise
+    except (OSError, KeyError, ValueError) as exc:
+        raise ArtifactError(f"{path}: unreadable or corrupt HDF5 ({' '.join(str(exc).split())}); {hint}") from exc
+    return Artifact(path=path, schema=spec.name, config=config, attrs=attrs, data=data)
+
+
+def write_json(path: str | os.PathLike, obj: Any) -> Path:
+    """Write JSON atomically (metrics files that DVC reads)."""
+    return write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=float) + "\n")
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write a text file atomically (temporary file beside it, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp_name, path)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return path
+
+
+# --- tactile images and scene folders in the paper's triplet layout ---------------------------------
+
+TACTILE_IMAGE_SHAPE = (320, 240, 3)  # rows (sensor z) x columns (sensor y) x RGB
+
+
+def read_tactile_image(path: str | os.PathLike) -> np.ndarray:
+    """A DIGIT image file -> (320, 240, 3) uint8 RGB. InputError if unreadable or of another size."""
+    import cv2
+
+    from tactile6d.errors import InputError
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(f"{path}: not a readable image")
+    if image.shape != TACTILE_IMAGE_SHAPE:
+        raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, a DIGIT image is 240 wide x 320 high")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def write_tactile_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """(320, 240, 3) uint8 RGB -> PNG file."""
+    import cv2
+
+    cv2.imwrite(str(path), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR))
+
+
+def read_scene_dir(directory: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """A scene folder in the paper's triplet layout -> T_world_sensors (L, 4, 4), images (L, 320, 240, 3).
+
+    The folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor) and
+    ``Image_heatmap_<i>.png`` for i = 0..L-1. InputError names what is missing or inconsistent.
+    """
+    from tactile6d.errors import InputError
+    from tactile6d.geometry import text_to_poses
+
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(f"scene folder {directory} not found")
+    pose_file = directory / "poses_sensors.txt"
+    if not pose_file.is_file():
+        raise InputError(f"{directory}: poses_sensors.txt missing")
+    try:
+        poses = text_to_poses(pose_file.read_text())
+    except ValueError as exc:
+        raise InputError(f"{pose_file}: {exc}") from exc
+    image_files = sorted(directory.glob("Image_heatmap_*.png"), key=lambda p: p.stem)
+    expected = [directory / f"Image_heatmap_{i}.png" for i in range(len(poses))]
+    missing = [p.name for p in expected if not p.is_file()]
+    if missing:
+        raise InputError(f"{directory}: {len(poses)} sensor poses but image(s) {', '.join(missing)} missing")
+    if len(image_files) != len(poses):
+        raise InputError(f"{directory}: {len(image_files)} images but {len(poses)} sensor poses")
+    return poses, np.stack([read_tactile_image(p) for p in expected])

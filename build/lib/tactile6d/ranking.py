@@ -1,0 +1,143 @@
+"""Collision-aware ranking of pose hypotheses (docs/design.md, The method).
+
+Score ``R_j = E_j + max_i d_ij``: the optimiser's loss plus the deepest penetration of the object at
+pose j into any sensor's body. Near-duplicate poses (translations within ``tol_translation`` and
+rotations within ``tol_rotation`` of a better-scored pose) are collapsed, then the ``top_k`` lowest
+scores are returned, best first.
+
+Only the poses that can still enter the top k are scored (branch and bound). Each pose carries a
+lower bound on its score, at first its loss (depths are >= 0). A batch of the poses with the lowest
+bounds is taken at a time: a pose whose bound came from the loss gets the first (cheapest) depth
+bound function applied, one with the first bound gets the second, and so on; one with all bounds
+gets its exact depths. This stops as soon as no unscored pose's bound is below the k-th best distinct
+score so far: no unscored pose can then beat it, nor (coming later in score order) hide one of the top
+k as its duplicate. The result is the same as scoring every pose (``rank_poses_brute_force``, checked
+in the tests), provided the depth function returns at least each bound (``collision``'s does). Ties
+in score are broken by input position.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactile6d.errors import InputError
+from tactile6d.geometry import rotation_angle
+
+
+@dataclass(frozen=True)
+class RankedPoses:
+    """The top k distinct poses, best first.
+
+    poses (K, 4, 4) ``T_world_object``; scores (K,) m; losses (K,) m; penetrations (K, L) m;
+    index (K,) positions in the ranked input; n_scored how many poses had their depths computed.
+    """
+
+    poses: np.ndarray
+    scores: np.ndarray
+    losses: np.ndarray
+    penetrations: np.ndarray
+    index: np.ndarray
+    n_scored: int
+
+
+def distinct_in_order(poses: np.ndarray, order: np.ndarray, tol_translation: float, tol_rotation: float, limit: int) -> list[int]:
+    """Greedy de-duplication: walk ``order`` (indices into poses (P, 4, 4)) and keep a pose unless it
+    is within tol_translation (m) and tol_rotation (rad) of one already kept; stop at ``limit`` kept.
+    Returns the kept indices, in walking order."""
+    kept: list[int] = []
+    for j in order:
+        if kept:
+            near_t = np.linalg.norm(poses[kept, :3, 3] - poses[j, :3, 3], axis=1) <= tol_translation
+            if np.any(near_t):
+                candidates = np.asarray(kept)[near_t]
+                if np.any(rotation_angle(poses[candidates, :3, :3], poses[j, :3, :3]) <= tol_rotation):
+                    continue
+        kept.append(int(j))
+        if len(kept) == limit:
+            break
+    return kept
+
+
+def rank_poses(
+    poses: np.ndarray,
+    losses: np.ndarray,
+    penetrations: Callable[[np.ndarray], np.ndarray],
+    top_k: int,
+    tol_translation: float,
+    tol_rotation: float,
+    depth_bounds: Sequence[Callable[[np.ndarray], np.ndarray]] = (),
+    batch: int = 256,
+) -> RankedPoses:
+    """The top_k distinct poses by R = E + max_i d_i, scoring only the poses that can make it.
+
+    poses (P, 4, 4), losses (P,) m, penetrations: a function (B, 4, 4) -> (B, L) depths in metres
+    (e.g. ``functools.partial(collision.poses_to_penetrations, model, T_world_sensor=...)``), top_k,
+    tol_translation m, tol_rotation rad, depth_bounds: functions (B, 4, 4) -> (B, L) lower bounds on
+    the depths, cheapest first; batch: poses handled per step.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    losses = np.asarray(losses, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or losses.shape != poses.shape[:1] or poses.shape[0] == 0:
+        raise InputError(f"need poses (P, 4, 4) and losses (P,) with P >= 1, got {poses.shape}, {losses.shape}")
+    if top_k < 1:
+        raise InputError(f"top_k must be >= 1, got {top_k}")
+    n_levels = len(depth_bounds)
+    key = losses.copy()  # lower bound on each pose's score
+    level = np.zeros(len(losses), dtype=np.int64)  # bounds applied so far; n_levels + 1 = scored
+    scored = np.zeros(0, dtype=np.int64)
+    depth_rows, scores = [], np.zeros(0)
+    kept: list[int] = []
+    while True:
+        threshold = scores[kept[-1]] if len(kept) == top_k else np.inf
+        open_ = np.flatnonzero((level <= n_levels) & (key < threshold))
+        if open_.size == 0:
+            break
+        if open_.size > batch:
+            # The batch lowest bounds, ties by input position.
+            open_ = open_[np.lexsort((open_, key[open_]))[:batch]]
+        # Each pose in the batch moves one step: to its next bound, or (all bounds known) to its depths.
+        at = level[open_]
+        for lvl in range(n_levels):
+            chunk = open_[at == lvl]
+            if chunk.size:
+                bound = np.asarray(depth_bounds[lvl](poses[chunk]), dtype=np.float64).max(axis=1)
+                key[chunk] = np.maximum(key[chunk], losses[chunk] + bound)
+                level[chunk] = lvl + 1
+        chunk = open_[at == n_levels]
+        if chunk.size:
+            depths = np.asarray(penetrations(poses[chunk]), dtype=np.float64)
+            level[chunk] = n_levels + 1
+            depth_rows.append(depths)
+            scored = np.concatenate([scored, chunk])
+            scores = np.concatenate([scores, losses[chunk] + depths.max(axis=1)])
+            # Positions into `scored`, best score first, ties by input position.
+            kept = distinct_in_order(poses[scored], np.lexsort((scored, scores)), tol_translation, tol_rotation, top_k)
+    depths = np.concatenate(depth_rows)
+    return RankedPoses(
+        poses=poses[scored[kept]],
+        scores=scores[kept],
+        losses=losses[scored[kept]],
+        penetrations=depths[kept],
+        index=scored[kept],
+        n_scored=len(scored),
+    )
+
+
+def rank_poses_brute_force(
+    poses: np.ndarray,
+    losses: np.ndarray,
+    penetrations: Callable[[np.ndarray], np.ndarray],
+    top_k: int,
+    tol_translation: float,
+    tol_rotation: float,
+) -> RankedPoses:
+    """Reference for ``rank_poses``: score every pose, then de-duplicate and take the top k."""
+    poses = np.asarray(poses, dtype=np.float64)
+    losses = np.asarray(losses, dtype=np.float64)
+    depths = np.asarray(penetrations(poses), dtype=np.float64)
+    scores = losses + depths.max(axis=1)
+    kept = distinct_in_order(poses, np.lexsort((np.arange(len(scores)), scores)), tol_translation, tol_rotation, top_k)
+    return RankedPoses(poses[kept], scores[kept], losses[kept], depths[kept], np.asarray(kept, dtype=np.int64), len(poses))

@@ -1,0 +1,174 @@
+"""Refining ranked pose hypotheses against the object's surface (not in the paper; ``rank.refine``).
+
+The optimiser fits each pose to database points, which lie millimetres apart, so even the right tuple
+leaves a few millimetres of error. Refinement moves a pose so that every sensor's contact point
+(``sensor.contact_points``) lies on the object's surface, ``offset`` outside it, and (weight
+``normal_weight``) every sensor's contact normal (its -x axis, ``sensor.contact_normals``) matches
+the surface normal there:
+
+    F(T) = sum_i (m_i . (q_i - c_i) - offset)^2 + normal_weight^2 sum_i || u_i - m_i ||^2
+
+with q_i = T^-1 s_i the contact point in the object frame, u_i = R^T n_i the contact normal there,
+and (c_i, m_i) the surface sample (point, outward face normal) matched to sensor i: among the ``k``
+samples nearest q_i, the one minimising ||q_i - c||^2 + normal_weight^2 ||u_i - m||^2 (so that a
+contact near an edge matches the face the sensor presses, not the one around the corner). Each
+iteration re-matches, then takes one damped, robustly weighted (Cauchy, 2 mm and 10 deg) Gauss-Newton step on SE(3), ``T <- T [exp(omega^), v]``
+(a weak prior anchoring the pose to its start keeps directions the contacts leave free in place;
+each step is clipped to 5 mm and 5 deg); all poses are refined together, vectorised. The surface is a dense,
+fixed, area-uniform sample with face normals (``contact.sample_surface``, 1 mm spacing).
+
+With the contact patches read from the images (``rank.refine_patch_points``), the points of each patch's
+pressed gel, which lie on the object's surface, join the fit as further point-to-plane rows (matched to
+their nearest sample, robustly weighted like the contacts); one sensor's patch points together weigh
+``rank.refine_patch_weight`` times its contact point. A patch spans millimetres of surface, so it also
+fixes how the surface is tilted and curved there, which one point cannot.
+
+Three contact points alone leave three degrees of freedom (each point-to-plane residual is one
+equation); the normal term adds two equations per sensor, which fixes the pose for L >= 2 and also
+tells apart hypotheses that fit the points equally well. ``surface_losses`` gives the two terms of
+a refined pose (mean absolute point-to-plane residual, m; mean normal angle, rad), from which the
+ranking scores refined poses (``estimator.rank``).
+
+Units: metres, radians. Poses are 4x4 float64 ``T_world_object``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tactile6d.geometry import make_pose, rotvec_to_rotmat, skew
+
+# A prior anchoring each pose to its start: each metre of accumulated translation counts as a
+# residual of _PRIOR_T metres, each radian of rotation as _PRIOR_R metres. Directions the contacts
+# leave free (contacts on two opposite faces and a third let the object slide along them) then stay
+# where the database fit put them instead of drifting.
+_PRIOR_T = 0.05
+_PRIOR_R = 0.001
+# Each step is clipped to this much translation (m) and rotation (rad): refinement corrects the few
+# millimetres and degrees of a database fit; it is not a global search.
+_MAX_STEP_T = 0.005
+_MAX_STEP_R = np.radians(5.0)
+# Scales of the robust weights: point-to-plane residual (m), normal difference (~ rad).
+_ROBUST_DISTANCE = 0.002
+_ROBUST_ANGLE = np.radians(10.0)
+
+
+def _match(surface, q: np.ndarray, u: np.ndarray, normal_weight: float, k: int):
+    """q, u (..., 3) object-frame contact points and normals -> matched sample points, normals (..., 3)."""
+    shape = q.shape
+    flat_q = q.reshape(-1, 3)
+    k = int(min(k, len(surface.points)))
+    _, idx = surface.tree.query(flat_q, k=k)
+    idx = np.asarray(idx).reshape(len(flat_q), k)
+    c, m = surface.points[idx], surface.normals[idx]  # (n, k, 3)
+    cost = np.sum((flat_q[:, None] - c) ** 2, axis=-1) + normal_weight**2 * np.sum((u.reshape(-1, 3)[:, None] - m) ** 2, axis=-1)
+    best = np.argmin(cost, axis=1)
+    rows = np.arange(len(flat_q))
+    return c[rows, best].reshape(shape), m[rows, best].reshape(shape)
+
+
+def _as_arrays(poses, sensor_points, sensor_normals) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """-> poses (P, 4, 4) as a float64 copy, sensor points (L, 3) and unit sensor normals (L, 3), float64."""
+    T = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
+    s = np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(sensor_normals, dtype=np.float64).reshape(-1, 3)
+    return T, s, n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _local(poses: np.ndarray, sensor_points: np.ndarray, sensor_normals: np.ndarray):
+    """poses (P, 4, 4) -> contact points q and normals u in each pose's object frame, (P, L, 3)."""
+    R, t = poses[:, :3, :3], poses[:, :3, 3]
+    q = np.einsum("pba,plb->pla", R, sensor_points[None] - t[:, None])
+    u = np.einsum("pba,lb->pla", R, sensor_normals)
+    return q, u
+
+
+def refine_poses(
+    surface,
+    poses: np.ndarray,
+    sensor_points: np.ndarray,
+    sensor_normals: np.ndarray,
+    n_iterations: int = 8,
+    normal_weight: float = 0.01,
+    offset: float = 0.0,
+    k: int = 32,
+    patch_points: np.ndarray | None = None,
+    patch_weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """Refine poses (P, 4, 4) so the sensors touch the surface (module docstring) -> (P, 4, 4).
+
+    surface: an object with ``points`` (S, 3), unit ``normals`` (S, 3) and a cKDTree ``tree`` over the
+    points, in the object frame (``contact.SurfaceSamples``); sensor_points (L, 3), sensor_normals
+    (L, 3) outward unit normals, world frame; normal_weight in m/rad (0: points only); offset (m) how
+    far outside the surface the contact points should sit (a number, or (L,) one per sensor); k samples considered per match.
+
+    patch_points (M, 3), world frame, with patch_weights (M,): further points known to lie on the
+    surface (the pressed gel of the observed contact patches, ``Contacts.patch_points``), each fitted
+    point-to-plane to its nearest surface sample with residual weight ``patch_weights``.
+    """
+    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
+    n_poses, n_sensors = T.shape[0], s.shape[0]
+    if n_poses == 0:
+        return T
+    w = float(normal_weight)
+    prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
+    moved = np.zeros((n_poses, 6))  # accumulated steps (local frame, first order)
+    has_patch = patch_points is not None and len(patch_points) > 0
+    if has_patch:
+        extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
+        extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
+    for _ in range(int(n_iterations)):
+        q, u = _local(T, s, n)
+        c, m = _match(surface, q, u, w, k)
+        # Point-to-plane rows: r = m.(q - c) - offset, dr/dv = -m, dr/domega = m x q.
+        r_d = np.sum(m * (q - c), axis=-1) - offset  # (P, L)
+        J_d = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, L, 6)
+        # Robust (Cauchy) weights: a contact matched to the wrong facet (a rounded edge of a scanned
+        # mesh) must not drag the pose; IRLS weights 1 / (1 + (r / scale)^2).
+        rho_d = 1.0 / (1.0 + (r_d / _ROBUST_DISTANCE) ** 2)
+        JtJ = np.einsum("pl,pla,plb->pab", rho_d, J_d, J_d)
+        Jtr = np.einsum("pl,pla,pl->pa", rho_d, J_d, r_d)
+        if has_patch:
+            qp = np.einsum("pba,pmb->pma", T[:, :3, :3], extra[None] - T[:, None, :3, 3])  # (P, M, 3), object frame
+            _, idx = surface.tree.query(qp.reshape(-1, 3))
+            cp = surface.points[idx].reshape(qp.shape)
+            mp = surface.normals[idx].reshape(qp.shape)
+            r_p = np.sum(mp * (qp - cp), axis=-1)  # (P, M)
+            J_p = np.concatenate([-mp, np.cross(mp, qp)], axis=-1)
+            rho_p = extra_w / (1.0 + (r_p / _ROBUST_DISTANCE) ** 2)
+            JtJ += np.einsum("pm,pma,pmb->pab", rho_p, J_p, J_p)
+            Jtr += np.einsum("pm,pma,pm->pa", rho_p, J_p, r_p)
+        if w > 0:
+            # Normal rows: r = w (u - m), dr/domega = w [u]x (u' = u + u x omega), dr/dv = 0.
+            r_n = w * (u - m)  # (P, L, 3)
+            J_n = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
+            rho_n = 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+            JtJ[:, 3:, 3:] += np.einsum("pl,plia,plib->pab", rho_n, J_n, J_n)
+            Jtr[:, 3:] += np.einsum("pl,plia,pli->pa", rho_n, J_n, r_n)
+        step = -np.linalg.solve(JtJ + prior, (Jtr + moved @ prior)[..., None])[..., 0]
+        for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
+            norm = np.linalg.norm(step[:, part], axis=1, keepdims=True)
+            step[:, part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+        moved += step
+        T = T @ make_pose(rotvec_to_rotmat(step[:, 3:]), step[:, :3])
+    return T
+
+
+def surface_losses(
+    surface,
+    poses: np.ndarray,
+    sensor_points: np.ndarray,
+    sensor_normals: np.ndarray,
+    normal_weight: float = 0.01,
+    offset: float = 0.0,
+    k: int = 32,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How well each pose (P, 4, 4) makes the sensors touch the surface -> (distance (P,) m, angle (P,) rad):
+    the mean over sensors of |point-to-plane residual| and of the angle between the contact normal and
+    the matched surface normal (matching as in ``refine_poses``)."""
+    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
+    q, u = _local(T, s, n)
+    c, m = _match(surface, q, u, float(normal_weight), k)
+    distance = np.abs(np.sum(m * (q - c), axis=-1) - offset).mean(axis=1)
+    angle = np.arccos(np.clip(np.sum(u * m, axis=-1), -1.0, 1.0)).mean(axis=1)
+    return distance, angle

@@ -1,0 +1,73 @@
+"""Accuracy against the number of sensors: every scene estimated again from each subset of its sensors.
+
+A scene with L sensors gives, for a count l <= L, the C(L, l) subsets of l sensors (3 singles, 3 pairs
+and the triple for L = 3). Each subset is one estimate of the online estimator and one row of errors
+(``evaluation.scene_errors``; contact accuracy counts the subset's sensors only); the rows of a count
+are summarised per object and averaged like Table I (``evaluation.summarise_by_object``). The
+sensor_study stage (ours vs baseline) and the ablation stage (the accuracy switches) both run this.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping
+
+import numpy as np
+from tqdm import tqdm
+
+from tactile6d import evaluation
+from tactile6d.errors import NoMatch
+from tactile6d.estimator import Estimator
+
+ERROR_KEYS = ("position", "adi", "adi_rotation", "contact_ok")
+
+
+def sensor_subsets(n_sensors: int, count: int) -> list[tuple[int, ...]]:
+    """The subsets of ``count`` sensors among ``n_sensors``, as sorted index tuples, in lexicographic order."""
+    if not 1 <= count <= n_sensors:
+        raise ValueError(f"a subset of {count} sensors among {n_sensors} does not exist")
+    return list(itertools.combinations(range(n_sensors), count))
+
+
+def evaluate_sensor_count(
+    scenes: Mapping[str, np.ndarray],
+    estimators: Mapping[str, Estimator],
+    references: Mapping[str, evaluation.ObjectReference],
+    count: int,
+    desc: str = "",
+    progress: bool = True,
+) -> tuple[dict[str, float], list[float]]:
+    """Estimate every scene from every subset of ``count`` of its sensors and summarise.
+
+    scenes: a ``scenes`` artifact (``objects`` (S,), ``T_world_object`` (S, 4, 4), ``T_world_sensors``
+    (S, L, 4, 4), ``images`` (S, L, 320, 240, 3)); estimators and references keyed by object name.
+    Returns the average row of ``evaluation.summarise_by_object`` (the metric keys of
+    ``evaluation.SUMMARY_KEYS``; an empty dict for an empty set) and the wall-clock seconds of each
+    estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate
+    that matches nothing (``NoMatch``) counts as a failure, as in evaluate; bad input raises.
+    """
+    n_scenes = len(scenes["objects"])
+    if n_scenes == 0:
+        return {}, []
+    subsets = sensor_subsets(scenes["T_world_sensors"].shape[1], count)
+    rows: dict[str, list[np.ndarray]] = {key: [] for key in ERROR_KEYS}
+    owners, seconds = [], []
+    for s in tqdm(range(n_scenes), desc=desc or f"L={count}", unit="scene", leave=False, disable=not progress):
+        obj = str(scenes["objects"][s])
+        ref = references[obj]
+        for subset in subsets:
+            idx = list(subset)
+            T_sensors = scenes["T_world_sensors"][s][idx]
+            try:
+                est = estimators[obj].estimate(T_sensors, scenes["images"][s][idx])
+                poses, n = est.poses, len(est.poses)
+                seconds.append(float(est.seconds["total"]))
+            except NoMatch:  # nothing matched: a failed estimate
+                poses, n = np.zeros((0, 4, 4)), 0
+            errors = evaluation.scene_errors(poses, n, scenes["T_world_object"][s], T_sensors, ref.points,
+                                             ref.surface, tree=ref.tree)
+            for key in ERROR_KEYS:
+                rows[key].append(errors[key])
+            owners.append(obj)
+    arrays = {key: np.stack(v) for key, v in rows.items()}
+    return evaluation.summarise_by_object(arrays, np.array(owners))["average"], seconds

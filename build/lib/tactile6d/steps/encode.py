@@ -1,0 +1,103 @@
+"""Step 1, encode: tactile images -> latent angles and the sensors' contacts, with what it loads (the
+autoencoder checkpoint, the database's latent angles, the sensor's no-contact image, the contact-patch
+calibration).
+
+The angle of an image is ``arccos(cos_sim(h, h_nc))``: how far its latent ``h`` is from the latent
+``h_nc`` of the no-contact image, the one number tactile selection compares with the database's. The
+contacts are the paper's landmarks, or each image's contact patch (``select.contacts``,
+``tactile6d.contacts``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from tactile6d import layout
+from tactile6d.autoencoder import encode, latent_angles, load_checkpoint
+from tactile6d.contacts import (
+    Contacts,
+    patches_to_contacts,
+    sensors_to_landmark_contacts,
+)
+from tactile6d.data import DataStore
+from tactile6d.errors import DataError, InputError
+from tactile6d.io import read_artifact, read_tactile_image
+from tactile6d.object_artifacts import require
+from tactile6d.patch import PatchModel, image_to_patch, load_model
+from tactile6d.settings import SelectSettings
+
+
+def load_database_angles(artifacts_dir: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The database images' latent angles (M,) rad and the no-contact latent (128,) (stage encode_database)."""
+    path = require(layout.latents_file(artifacts_dir, name), "encode_database", name)
+    art = read_artifact(path, "latents")
+    return np.asarray(art["angles"], dtype=np.float64), np.asarray(art["latent_nc"], dtype=np.float32)
+
+
+def load_background(cfg: Mapping, data_dir: str | Path | None = None) -> np.ndarray:
+    """The no-contact image the tactile images were rendered over, (320, 240, 3) uint8 **RGB**.
+
+    ``render.background`` is a path relative to the data directory: ``data_dir`` when given, else the
+    one ``tactile6d.data.DataStore`` resolves from ``paths``. The PNG is read in RGB order like the
+    tactile images (``io.read_tactile_image``): the renderer takes the file in OpenCV's BGR order
+    (``render.load_background_bgr``) and flips it to RGB itself, so its no-contact output is the file's
+    RGB; the paper's images match it there channel for channel.
+    """
+    relpath = str(cfg["render"]["background"])
+    if data_dir is not None:
+        path = Path(data_dir) / relpath
+        if not path.is_file():
+            raise DataError(f"no-contact background {path} not found (render.background under the data directory)")
+    else:
+        path = DataStore(cfg["paths"]).path(relpath)
+    return read_tactile_image(path)
+
+
+class LatentAngleEncoder:
+    """Images (L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad) of a trained autoencoder.
+
+    The angle is ``arccos(cos_sim(h, h_nc))`` with ``h_nc`` the no-contact latent the database angles
+    were computed against (from latents.h5), so image and database angles are comparable. background:
+    the no-contact image (320, 240, 3) uint8 RGB of the sensor whose images are encoded.
+    """
+
+    def __init__(self, model, norm, background: np.ndarray, latent_nc: np.ndarray):
+        self.model, self.norm = model, norm
+        self.background = np.asarray(background)
+        self.latent_nc = np.asarray(latent_nc)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, background: np.ndarray, latent_nc: np.ndarray) -> LatentAngleEncoder:
+        model, norm, _ = load_checkpoint(path)
+        return cls(model, norm, background, latent_nc)
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:
+        return latent_angles(encode(self.model, self.norm, images, self.background), self.latent_nc)
+
+
+def load_patch_model(artifacts_dir: str | Path) -> PatchModel:
+    """The contact-patch calibration (stage calibrate_patch)."""
+    return load_model(require(layout.patch_model_file(artifacts_dir), "calibrate_patch"))
+
+
+def read_contacts(
+    settings: SelectSettings,
+    T_world_sensors: np.ndarray,
+    images: np.ndarray | None = None,
+    no_contact: np.ndarray | None = None,
+    model: PatchModel | None = None,
+) -> Contacts:
+    """The sensors' contacts for one estimate: their landmarks, or (``settings.reads_patches``) each
+    image's contact patch.
+
+    T_world_sensors (L, 4, 4); images (L, 320, 240, 3) uint8 RGB, no_contact (320, 240, 3) uint8 RGB
+    (the sensor's no-contact image) and model (the patch calibration) are needed for patches.
+    """
+    if not settings.reads_patches:
+        return sensors_to_landmark_contacts(T_world_sensors)
+    if images is None or no_contact is None or model is None:
+        raise InputError("select.contacts=patch needs the images, the no-contact image and the patch calibration")
+    return patches_to_contacts([image_to_patch(im, no_contact, model) for im in images], T_world_sensors)
