@@ -3,7 +3,7 @@
     python scripts/angle_gaps.py --artifacts artifacts --scenes validation
 
 For every sensor of the scene set: the gap between its image's latent angle and the angle of the
-database point nearest its true contact (``stages.ae_quality.triplet_gaps``, which the ``ae_quality``
+database point nearest its true contact (``tactile6d.latent_gaps.triplet_gaps``, which the ``ae_quality``
 stage runs on caddeo2023). Prints one JSON line: the median and 90th percentile of the gap (rad), and
 the share of sensors whose gap is under ``select.delta_h``, i.e. whose true contact point survives the
 tactile selection's first threshold. Reads the artifacts of the pipeline (checkpoint, latents,
@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d and stages
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from stages.ae_quality import triplet_gaps
 from tactile6d import autoencoder, layout
 from tactile6d.config import compose_config
 from tactile6d.io import read_artifact
+from tactile6d.latent_gaps import triplet_gaps
 
 
 def main() -> int:

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -27,10 +26,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 from tactile6d import contact, evaluation, layout, scenes
 from tactile6d.config import compose_config
-from tactile6d.errors import NoMatch
 from tactile6d.estimator import Estimator
 from tactile6d.io import read_artifact
 from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.sensor_subsets import ERROR_KEYS, estimate_and_score
 
 
 def proxy_scenes(artifacts: str, objects: list[str], per_object: int, seed: int) -> dict:
@@ -74,30 +73,25 @@ def main() -> int:
     keep = np.ones(len(data["names"]), dtype=bool) if not args.objects else np.isin(data["objects"], args.objects)
 
     estimators, references = {}, {}
-    rows = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok")}
+    rows = {key: [] for key in ERROR_KEYS}
     seconds, steps, owners, failed = [], [], [], 0
     for s in np.flatnonzero(keep):
         obj = str(data["objects"][s])
         if obj not in estimators:
             estimators[obj] = Estimator.from_artifacts(obj, args.artifacts, cfg)
             references[obj] = evaluation.load_object_reference(args.artifacts, obj)
-        T = data["T_world_sensors"][s]
         images = None if data["images"] is None else data["images"][s]
-        t0 = time.perf_counter()
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                result = estimators[obj].estimate(T, images)
-            poses, n = result.poses, len(result.poses)
-            steps.append(result.seconds)
-        except NoMatch:
-            poses, n = np.zeros((0, 4, 4)), 0
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            scored = estimate_and_score(estimators[obj], data["T_world_sensors"][s], images,
+                                        data["T_world_object"][s], references[obj])
+        if scored.seconds is None:
             failed += 1
-        seconds.append(time.perf_counter() - t0)
-        ref = references[obj]
-        e = evaluation.scene_errors(poses, n, data["T_world_object"][s], T, ref.points, ref.surface, tree=ref.tree)
+        else:
+            steps.append(scored.seconds)
+        seconds.append(scored.wall_seconds)
         for key, values in rows.items():
-            values.append(e[key])
+            values.append(scored.errors[key])
         owners.append(obj)
     errors = {key: np.array(v) for key, v in rows.items()}
     summary = evaluation.summarise_by_object(errors, np.array(owners))

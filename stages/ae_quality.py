@@ -27,37 +27,18 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-from scipy.spatial import cKDTree  # noqa: E402
 
 from tactile6d import autoencoder, contact, layout, metrics  # noqa: E402
 from tactile6d.config import parse_stage_args  # noqa: E402
 from tactile6d.errors import exit_on_error  # noqa: E402
-from tactile6d.geometry import invert_pose, transform_points  # noqa: E402
 from tactile6d.io import read_artifact, write_json  # noqa: E402
+from tactile6d.latent_gaps import triplet_gaps  # noqa: E402
 
 
 def database_types(artifacts: str, name: str, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     obj = read_artifact(layout.object_file(artifacts, name), "object")
     mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
     return contact.classify_contacts(contact.sample_surface(mesh), points, normals)
-
-
-def triplet_gaps(artifacts: str, angles: dict, points: dict, model, norm, background,
-                 scene_set: str = "caddeo2023") -> np.ndarray:
-    """|angle(sensor image) - angle(database point nearest the true contact)| per sensor of a scene set,
-    sensor by sensor, scene by scene (scenes of objects missing from ``angles`` are skipped)."""
-    scenes = read_artifact(layout.scenes_file(artifacts, scene_set), "scenes")
-    gaps = []
-    for s, obj in enumerate(scenes["objects"].tolist()):
-        if obj not in angles:
-            continue
-        latent_nc = read_artifact(layout.latents_file(artifacts, obj), "latents")["latent_nc"]
-        image_angles = autoencoder.latent_angles(
-            autoencoder.encode(model, norm, scenes["images"][s], background), latent_nc)
-        local = transform_points(invert_pose(scenes["T_world_object"][s]), scenes["contact_points"][s])
-        _, nearest = cKDTree(points[obj]).query(local)
-        gaps.extend(np.abs(image_angles - angles[obj][nearest]).tolist())
-    return np.asarray(gaps)
 
 
 def plot_angles(by_type: dict[str, np.ndarray], path: Path) -> None:

@@ -17,7 +17,6 @@ import sys
 import time
 
 import numpy as np
-from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from tactile6d import contact, database, layout
@@ -27,29 +26,7 @@ from tactile6d.data import DataStore
 from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.io import write_artifact
 from tactile6d.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
-from tactile6d.sensor import CONTACT_POINT, GEL_CENTER, contact_normals, contact_points
-
-
-def surface_points(T_object_sensors: np.ndarray, depths: np.ndarray) -> np.ndarray:
-    """The surface point each sensor touches: (n, 3), from T (n, 4, 4) and press depths (n,) metres.
-
-    Inverts ``sensor_poses_touching``: the contact point lies ``GEL_CENTER.x - CONTACT_POINT.x - depth``
-    outside the surface along the normal (the sensor's -x axis).
-    """
-    gap = GEL_CENTER[0] - CONTACT_POINT[0] - np.asarray(depths)
-    return contact_points(T_object_sensors) - gap[:, None] * contact_normals(T_object_sensors)
-
-
-def contact_kinds(mesh, points: np.ndarray, sharp_radius: float) -> np.ndarray:
-    """(n,) uint8 kind (surface, edge, corner) of the mesh vertex nearest each point (n, 3)."""
-    _, nearest = cKDTree(np.asarray(mesh.vertices)).query(points)
-    return sq.vertex_kinds(mesh, sharp_radius)[nearest].astype(np.uint8)
-
-
-def shape_groups(contacts: list[sq.TrainingContact]) -> list[tuple[int, int]]:
-    """Index ranges [a, b) of consecutive contacts on the same shape (sample_training_contacts groups them)."""
-    edges = [0] + [i for i in range(1, len(contacts)) if contacts[i].shape is not contacts[i - 1].shape]
-    return list(zip(edges, edges[1:] + [len(contacts)]))
+from tactile6d.sensor import contact_normals, sensor_poses_to_surface_points
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -65,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     poses = np.stack([c.T_object_sensor for c in contacts])
     depths = np.array([c.depth for c in contacts])
 
-    groups = shape_groups(contacts)
+    groups = sq.training_contact_groups(contacts)
     kinds = np.empty(n, dtype=np.uint8)
     contact_types = np.empty(n, dtype=np.int8)
     body = np.empty(n, dtype=bool)
@@ -77,8 +54,8 @@ def main(argv: list[str] | None = None) -> int:
                 # the mesh the contacts were drawn on (deterministic from the shape and the mesh settings)
                 mesh = sq.superquadric_mesh(contacts[a].shape, float(ts.mesh_max_edge), float(ts.mesh_max_turn))
                 database.render_compact(renderer, mesh_arrays(mesh), poses[a:b], images, progress=bar.update)
-                touched = surface_points(poses[a:b], depths[a:b])
-                kinds[a:b] = contact_kinds(mesh, touched, float(ts.sharp_radius))
+                touched = sensor_poses_to_surface_points(poses[a:b], depths[a:b])
+                kinds[a:b] = sq.nearest_vertex_kinds(mesh, touched, float(ts.sharp_radius))
                 contact_types[a:b] = contact.classify_contacts(contact.sample_surface(mesh), touched,
                                                                contact_normals(poses[a:b]))
                 body[a:b] = database.body_contacts(mesh.vertices, poses[a:b])

@@ -55,6 +55,18 @@ def sensor_poses_touching(
     return make_pose(R, t)
 
 
+def sensor_poses_to_surface_points(T_frame_sensors: np.ndarray, depths: np.ndarray | float) -> np.ndarray:
+    """The surface points that sensors placed by ``sensor_poses_touching`` touch: its inverse for the points.
+
+    T_frame_sensors (..., 4, 4) sensor poses in the surface's frame, depths (...) metres pressed into the
+    surface -> points (..., 3) in that frame, metres. The contact point ``CONTACT_POINT`` lies
+    ``GEL_CENTER.x - CONTACT_POINT.x - depth`` outside the surface along the outward normal (the sensor's
+    -x axis, ``contact_normals``).
+    """
+    gap = _APEX_AHEAD_OF_CONTACT - np.asarray(depths, dtype=np.float64)
+    return contact_points(T_frame_sensors) - gap[..., None] * contact_normals(T_frame_sensors)
+
+
 def contact_points(T_frame_sensor: np.ndarray) -> np.ndarray:
     """(..., 4, 4) sensor poses -> (..., 3): the paper's landmark ``t + R @ CONTACT_POINT``."""
     T = np.asarray(T_frame_sensor, dtype=np.float64)

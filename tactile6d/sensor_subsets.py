@@ -5,12 +5,15 @@ and the triple for L = 3). Each subset is one estimate of the online estimator a
 (``evaluation.scene_errors``; contact accuracy counts the subset's sensors only); the rows of a count
 are summarised per object and averaged like Table I (``evaluation.summarise_by_object``). The
 sensor_study stage (ours vs baseline) and the ablation stage (the accuracy switches) both run this.
+``estimate_and_score`` (one estimate and its row of errors) is shared with scripts/eval_accuracy.py.
 """
 
 from __future__ import annotations
 
 import itertools
+import time
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 from tqdm import tqdm
@@ -20,6 +23,43 @@ from tactile6d.errors import NoMatch
 from tactile6d.estimator import Estimator
 
 ERROR_KEYS = ("position", "adi", "adi_rotation", "contact_ok")
+
+
+class ScoredEstimate(NamedTuple):
+    """One estimate and its errors: ``errors`` is ``evaluation.scene_errors``' row (arrays (k,) keyed by
+    ``ERROR_KEYS``); ``seconds`` the estimator's wall-clock seconds by step (``Estimate.seconds``, with
+    ``total``), None when the estimate matched nothing (``NoMatch``, a failure); ``wall_seconds`` the
+    wall-clock seconds of the whole call to ``estimate``, a failed one included."""
+
+    errors: dict[str, np.ndarray]
+    seconds: dict[str, float] | None
+    wall_seconds: float
+
+
+def estimate_and_score(
+    estimator: Estimator,
+    T_world_sensors: np.ndarray,
+    images: np.ndarray | None,
+    T_world_object: np.ndarray,
+    reference: evaluation.ObjectReference,
+) -> ScoredEstimate:
+    """Estimate one scene's object pose from its sensors and score the ranked poses against the truth.
+
+    T_world_sensors (L, 4, 4) and images (L, 320, 240, 3) uint8 (None for a method that reads none) go to
+    ``estimator.estimate``; T_world_object (4, 4) is the true pose; reference the object's
+    (``evaluation.load_object_reference``). An estimate that matches nothing (``NoMatch``) counts as a
+    failure (no poses: NaN errors, ``seconds`` None), as in evaluate; bad input raises.
+    """
+    t0 = time.perf_counter()
+    try:
+        est = estimator.estimate(T_world_sensors, images)
+        poses, n, seconds = est.poses, len(est.poses), est.seconds
+    except NoMatch:  # nothing matched: a failed estimate
+        poses, n, seconds = np.zeros((0, 4, 4)), 0, None
+    wall_seconds = time.perf_counter() - t0
+    errors = evaluation.scene_errors(poses, n, T_world_object, T_world_sensors, reference.points,
+                                     reference.surface, tree=reference.tree)
+    return ScoredEstimate(errors, seconds, wall_seconds)
 
 
 def sensor_subsets(n_sensors: int, count: int) -> list[tuple[int, ...]]:
@@ -54,20 +94,14 @@ def evaluate_sensor_count(
     owners, seconds = [], []
     for s in tqdm(range(n_scenes), desc=desc or f"L={count}", unit="scene", leave=False, disable=not progress):
         obj = str(scenes["objects"][s])
-        ref = references[obj]
         for subset in subsets:
             idx = list(subset)
-            T_sensors = scenes["T_world_sensors"][s][idx]
-            try:
-                est = estimators[obj].estimate(T_sensors, scenes["images"][s][idx])
-                poses, n = est.poses, len(est.poses)
-                seconds.append(float(est.seconds["total"]))
-            except NoMatch:  # nothing matched: a failed estimate
-                poses, n = np.zeros((0, 4, 4)), 0
-            errors = evaluation.scene_errors(poses, n, scenes["T_world_object"][s], T_sensors, ref.points,
-                                             ref.surface, tree=ref.tree)
+            scored = estimate_and_score(estimators[obj], scenes["T_world_sensors"][s][idx], scenes["images"][s][idx],
+                                        scenes["T_world_object"][s], references[obj])
+            if scored.seconds is not None:
+                seconds.append(float(scored.seconds["total"]))
             for key in ERROR_KEYS:
-                rows[key].append(errors[key])
+                rows[key].append(scored.errors[key])
             owners.append(obj)
     arrays = {key: np.stack(v) for key, v in rows.items()}
     return evaluation.summarise_by_object(arrays, np.array(owners))["average"], seconds

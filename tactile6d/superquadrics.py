@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from tactile6d.errors import ConfigError
 from tactile6d.sensor import sensor_poses_touching
@@ -244,6 +245,12 @@ def face_kinds(mesh: trimesh.Trimesh, sharp_radius: float) -> np.ndarray:
     return np.median(vertex_kinds(mesh, sharp_radius)[mesh.faces], axis=1).astype(int)
 
 
+def nearest_vertex_kinds(mesh: trimesh.Trimesh, points: np.ndarray, sharp_radius: float) -> np.ndarray:
+    """(n,) int: the kind (``vertex_kinds``) of the mesh vertex nearest each point (n, 3), metres."""
+    _, nearest = cKDTree(np.asarray(mesh.vertices)).query(points)
+    return vertex_kinds(mesh, sharp_radius)[nearest]
+
+
 def sample_surface_contacts(
     sq: Superquadric,
     mesh: trimesh.Trimesh,
@@ -341,3 +348,9 @@ def sample_training_contacts(n: int, rng: np.random.Generator, cfg: Mapping) -> 
         poses = sensor_poses_touching(points, normals, rolls, depths)
         out.extend(TrainingContact(sq, T, float(d), float(r)) for T, d, r in zip(poses, depths, rolls))
     return out
+
+
+def training_contact_groups(contacts: list[TrainingContact]) -> list[tuple[int, int]]:
+    """Index ranges [a, b) of consecutive contacts on the same shape (``sample_training_contacts`` groups them)."""
+    edges = [0] + [i for i in range(1, len(contacts)) if contacts[i].shape is not contacts[i - 1].shape]
+    return list(zip(edges, edges[1:] + [len(contacts)]))

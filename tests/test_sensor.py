@@ -24,3 +24,17 @@ def test_roll_turns_about_the_normal():
     T0 = sensor.sensor_poses_touching(p, n, 0.0)
     T1 = sensor.sensor_poses_touching(p, n, np.pi / 2)
     np.testing.assert_allclose(T1[:3, 1], T0[:3, 2], atol=1e-12)
+
+
+def test_surface_points_invert_the_placement():
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(50, 3))
+    normals = rng.normal(size=(50, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    depths = rng.uniform(0.0005, 0.0025, 50)
+    T = sensor.sensor_poses_touching(points, normals, rng.uniform(-np.pi, np.pi, 50), depths)
+    np.testing.assert_allclose(sensor.sensor_poses_to_surface_points(T, depths), points, rtol=0, atol=1e-12)
+    # any batch shape, and one depth for all
+    T = sensor.sensor_poses_touching(points.reshape(5, 10, 3), normals.reshape(5, 10, 3), 0.3, 0.002)
+    np.testing.assert_allclose(sensor.sensor_poses_to_surface_points(T, 0.002), points.reshape(5, 10, 3),
+                               rtol=0, atol=1e-12)

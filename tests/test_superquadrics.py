@@ -96,6 +96,9 @@ def test_kinds_and_biased_sampling(meshes):
     assert share[sq.EDGE] > 0.3 and share[sq.CORNER] > 0.12 and share[sq.SURFACE] > 0.3
     with pytest.raises(ConfigError):
         sq.sample_surface_contacts(SHAPES[2], meshes[2], 10, rng, 0.7, 0.5, 0.008)
+    # a point takes the kind of its nearest vertex: each vertex its own
+    np.testing.assert_array_equal(sq.nearest_vertex_kinds(meshes[2], meshes[2].vertices, 0.008),
+                                  sq.vertex_kinds(meshes[2], 0.008))
 
 
 def test_shapes_narrower_than_the_gel_give_tips_and_rods():
@@ -137,6 +140,7 @@ def test_training_contacts_face_and_press_the_surface():
     # grouped by shape, 15 each, in order
     assert [shapes[i] for i in (0, 15, 30, 45)] == list(dict.fromkeys(shapes))
     assert all(shapes[i] == shapes[15 * (i // 15)] for i in range(60))
+    assert sq.training_contact_groups(contacts) == [(0, 15), (15, 30), (30, 45), (45, 60)]
     cfg = training_cfg()
     for c in contacts:
         s, T = c.shape, c.T_object_sensor

@@ -54,7 +54,7 @@ def test_images_and_parameters(built):
 def test_sensors_touch_the_superquadric(built):
     _, ts = built
     shape = sq.Superquadric(*ts["axes"][0], *ts["exponents"][0])
-    points = make_training_set.surface_points(ts["T_object_sensor"], ts["depths"])
+    points = sensor.sensor_poses_to_surface_points(ts["T_object_sensor"], ts["depths"])
     on_shape = points[ts["shape_index"] == 0]
     np.testing.assert_allclose(sq.radial_distance(shape, on_shape), 1.0, atol=1e-9)
 
@@ -68,16 +68,6 @@ def test_rebuilt_image_equals_a_direct_render(built):
     direct = renderer.render(mesh, np.eye(4), ts["T_object_sensor"][i], seed=int(ts["noise_seeds"][i]))
     np.testing.assert_array_equal(database.database_images(ts, [i])[0], direct.image)
     np.testing.assert_array_equal(database.database_masks(ts, [i])[0], direct.mask)
-
-
-def test_surface_points_invert_the_placement():
-    rng = np.random.default_rng(0)
-    points = rng.normal(size=(6, 3))
-    normals = rng.normal(size=(6, 3))
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    depths = rng.uniform(0.0005, 0.0025, 6)
-    T = sensor.sensor_poses_touching(points, normals, rng.uniform(-np.pi, np.pi, 6), depths)
-    np.testing.assert_allclose(make_training_set.surface_points(T, depths), points, atol=1e-12)
 
 
 def test_bad_count_and_corrupt_artifact(tmp_path):
