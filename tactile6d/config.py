@@ -1,8 +1,9 @@
 """Loading the configuration a stage or command runs with.
 
 Two sources give the same tree:
-- the Hydra tree in ``conf/`` (a checkout's, or the copy installed with the package) (composed with Hydra's compose API, so group overrides such as
-  ``objects=primitives`` work), used when a stage runs alone: ``python -m stages.X key=value``;
+- the Hydra tree in ``conf/``, a checkout's or the copy installed with the package, composed with Hydra's
+  compose API (so group overrides such as ``objects=primitives`` work), used when a stage runs alone:
+  ``python -m stages.X key=value``;
 - a composed ``params.yaml`` (``--params params.yaml``), used under DVC, because ``dvc exp run -S``
   writes its overrides there, not into ``conf/``.
 """

@@ -75,12 +75,26 @@ def _as_arrays(poses, sensor_points, sensor_normals) -> tuple[np.ndarray, np.nda
     return T, s, n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
+def _to_object(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """poses (P, 4, 4) ``T_world_object``, world points (M, 3) -> the points in each pose's object frame (P, M, 3)."""
+    R, t = poses[:, :3, :3], poses[:, :3, 3]
+    return np.einsum("pba,plb->pla", R, points[None] - t[:, None])
+
+
 def _local(poses: np.ndarray, sensor_points: np.ndarray, sensor_normals: np.ndarray):
     """poses (P, 4, 4) -> contact points q and normals u in each pose's object frame, (P, L, 3)."""
-    R, t = poses[:, :3, :3], poses[:, :3, 3]
-    q = np.einsum("pba,plb->pla", R, sensor_points[None] - t[:, None])
-    u = np.einsum("pba,lb->pla", R, sensor_normals)
-    return q, u
+    return _to_object(poses, sensor_points), np.einsum("pba,lb->pla", poses[:, :3, :3], sensor_normals)
+
+
+def _point_to_plane(q: np.ndarray, c: np.ndarray, m: np.ndarray, offset, weight) -> tuple[np.ndarray, np.ndarray]:
+    """Normal equations (JtJ (P, 6, 6), Jtr (P, 6)) of point-to-plane rows for points q (P, n, 3) matched to
+    surface samples c with normals m: r = m.(q - c) - offset, dr/dv = -m, dr/domega = m x q; each row
+    weighted ``weight`` (a number or (n,)) times a robust (Cauchy) weight 1 / (1 + (r / 2 mm)^2), so that
+    a point matched to the wrong facet (a rounded edge of a scanned mesh) does not drag the pose (IRLS)."""
+    r = np.sum(m * (q - c), axis=-1) - offset  # (P, n)
+    J = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, n, 6)
+    rho = weight / (1.0 + (r / _ROBUST_DISTANCE) ** 2)
+    return np.einsum("pl,pla,plb->pab", rho, J, J), np.einsum("pl,pla,pl->pa", rho, J, r)
 
 
 def refine_poses(
@@ -100,7 +114,8 @@ def refine_poses(
     surface: an object with ``points`` (S, 3), unit ``normals`` (S, 3) and a cKDTree ``tree`` over the
     points, in the object frame (``contact.SurfaceSamples``); sensor_points (L, 3), sensor_normals
     (L, 3) outward unit normals, world frame; normal_weight in m/rad (0: points only); offset (m) how
-    far outside the surface the contact points should sit (a number, or (L,) one per sensor); k samples considered per match.
+    far outside the surface the contact points should sit (a number, or (L,) one per sensor); k samples
+    considered per match.
 
     patch_points (M, 3), world frame, with patch_weights (M,): further points known to lie on the
     surface (the pressed gel of the observed contact patches, ``Contacts.patch_points``), each fitted
@@ -120,24 +135,14 @@ def refine_poses(
     for _ in range(int(n_iterations)):
         q, u = _local(T, s, n)
         c, m = _match(surface, q, u, w, k)
-        # Point-to-plane rows: r = m.(q - c) - offset, dr/dv = -m, dr/domega = m x q.
-        r_d = np.sum(m * (q - c), axis=-1) - offset  # (P, L)
-        J_d = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, L, 6)
-        # Robust (Cauchy) weights: a contact matched to the wrong facet (a rounded edge of a scanned
-        # mesh) must not drag the pose; IRLS weights 1 / (1 + (r / scale)^2).
-        rho_d = 1.0 / (1.0 + (r_d / _ROBUST_DISTANCE) ** 2)
-        JtJ = np.einsum("pl,pla,plb->pab", rho_d, J_d, J_d)
-        Jtr = np.einsum("pl,pla,pl->pa", rho_d, J_d, r_d)
+        JtJ, Jtr = _point_to_plane(q, c, m, offset, 1.0)
         if has_patch:
-            qp = np.einsum("pba,pmb->pma", T[:, :3, :3], extra[None] - T[:, None, :3, 3])  # (P, M, 3), object frame
+            qp = _to_object(T, extra)  # (P, M, 3); each matched to its nearest sample
             _, idx = surface.tree.query(qp.reshape(-1, 3))
-            cp = surface.points[idx].reshape(qp.shape)
-            mp = surface.normals[idx].reshape(qp.shape)
-            r_p = np.sum(mp * (qp - cp), axis=-1)  # (P, M)
-            J_p = np.concatenate([-mp, np.cross(mp, qp)], axis=-1)
-            rho_p = extra_w / (1.0 + (r_p / _ROBUST_DISTANCE) ** 2)
-            JtJ += np.einsum("pm,pma,pmb->pab", rho_p, J_p, J_p)
-            Jtr += np.einsum("pm,pma,pm->pa", rho_p, J_p, r_p)
+            patch_JtJ, patch_Jtr = _point_to_plane(qp, surface.points[idx].reshape(qp.shape),
+                                                   surface.normals[idx].reshape(qp.shape), 0.0, extra_w)
+            JtJ += patch_JtJ
+            Jtr += patch_Jtr
         if w > 0:
             # Normal rows: r = w (u - m), dr/domega = w [u]x (u' = u + u x omega), dr/dv = 0.
             r_n = w * (u - m)  # (P, L, 3)

@@ -43,6 +43,9 @@ def rank(
       ``contact.SurfaceSamples``, required then) and scored ``d + refine_normal_weight * a + deepest
       penetration``, d and a the refined pose's mean point-to-plane residual (m) and normal angle (rad)
       (``refine.surface_losses``); ``losses`` of the result are then ``d + refine_normal_weight * a``.
+      With ``rank.refine_patch_points`` > 0 and observed patches, that many points of each patch's
+      pressed gel join the fit (``Contacts.patch_points``), each sensor's together weighing
+      ``refine_patch_weight`` times its contact point.
     - ``rank.agreement_weight`` > 0 (``tactile6d.agreement``): render-and-compare, when ``contacts`` hold
       the observed patches (source ``patch``; landmark contacts, as the baseline's, have none, and are
       ranked without it). Each pose's predicted contact on every gel is compared with the observed patch
@@ -77,7 +80,7 @@ def rank(
         w, offset = float(settings.refine_normal_weight), contacts.offsets(settings.refine_offset)
         extra, owners = contacts.patch_points(T_world_sensors, int(settings.refine_patch_points))
         # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
-        per_sensor = np.bincount(owners, minlength=len(s))[owners] if len(owners) else np.zeros(0)
+        per_sensor = np.bincount(owners, minlength=len(s))[owners]
         extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
         candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w, offset,
                                              patch_points=extra, patch_weights=extra_w)
