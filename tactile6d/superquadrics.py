@@ -43,6 +43,13 @@ _FINE_SAMPLES = 20000
 # pile vertices into sub-micron slivers; the gel cannot resolve such detail anyway.
 _MIN_BEND_RADIUS = 0.0002
 
+# The most points one superellipse gets. A mesh has (points per curve)^2 vertices, so an unbounded
+# budget (a shape far larger than max_edge, or a degenerate one) would ask for more memory than the
+# machine has; at this cap a mesh has at most ~4M vertices. The training and calibration shapes stay far
+# below it (their curves need at most a few hundred points), so it only turns an out-of-memory crash
+# into a coarser mesh.
+_MAX_CURVE_SAMPLES = 2048
+
 # Contact kinds, by how many directions the surface bends sharply in.
 SURFACE, EDGE, CORNER = 0, 1, 2
 KIND_NAMES = ("surface", "edge", "corner")
@@ -138,7 +145,8 @@ def superellipse_samples(
     otherwise the half with x >= 0 from -pi/2 to pi/2, both ends included. Consecutive points are at
     most ``max_edge`` apart (metres, on the scaled curve) and their normals at most ``max_turn`` apart
     (radians), approximately: both budgets are spread evenly along the curve. Bends sharper than
-    ``_MIN_BEND_RADIUS`` get only that radius's share of the turning budget.
+    ``_MIN_BEND_RADIUS`` get only that radius's share of the turning budget. At most
+    ``_MAX_CURVE_SAMPLES`` points: beyond that the budgets are exceeded, evenly.
     """
     lo, hi = (-np.pi, np.pi) if closed else (-np.pi / 2, np.pi / 2)
     phi = np.linspace(lo, hi, _FINE_SAMPLES)
@@ -149,7 +157,7 @@ def superellipse_samples(
     turn = np.minimum(np.abs(np.diff(normal_angle)), ds / _MIN_BEND_RADIUS)
     step = ds / max_edge + turn / max_turn
     cost = np.concatenate([[0.0], np.cumsum(step)])
-    n_seg = max(16 if closed else 8, int(np.ceil(cost[-1])))
+    n_seg = min(max(16 if closed else 8, int(np.ceil(cost[-1]))), _MAX_CURVE_SAMPLES)
     targets = np.linspace(0.0, cost[-1], n_seg + 1)
     if closed:
         targets = targets[:-1]

@@ -115,6 +115,16 @@ def test_shapes_narrower_than_the_gel_give_tips_and_rods():
     assert np.all(sq.vertex_kinds(big, sharp_radius) == sq.SURFACE)  # the old 15 mm floor: no tips
 
 
+def test_a_shape_far_larger_than_the_edge_budget_meshes_coarser_not_out_of_memory():
+    # A 2 m box at 1 mm edges would need ~8000 points per superellipse, 64M vertices: capped instead.
+    huge = sq.Superquadric(1.0, 1.0, 1.0, 0.2, 0.2)
+    mesh = sq.superquadric_mesh(huge, 0.001, 0.05)
+    n_rings, n_around = sq.grid_shape(mesh)
+    assert n_around == sq._MAX_CURVE_SAMPLES and n_rings == sq._MAX_CURVE_SAMPLES - 1
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    np.testing.assert_allclose(sq.radial_distance(huge, mesh.vertices), 1.0, atol=1e-9)
+
+
 def test_sampled_contacts_lie_on_the_surface_with_outward_normals(meshes):
     rng = np.random.default_rng(2)
     for s, mesh in zip(SHAPES, meshes):
