@@ -181,8 +181,8 @@ def ycb_contacts(mesh, n, rng, renderer, offaxis: bool):
 
 def make_cases(args, data: Path) -> list[Case]:
     """All contact sets of the module docstring, rendered, with their truths."""
-    paper = DigitRenderer(cv2.imread(str(data / "digit/caddeo2023/background.png")))
-    tacto = DigitRenderer(cv2.imread(str(data / "digit/tacto/bg_digit_240_320.jpg")))
+    paper = DigitRenderer.from_default_config(cv2.imread(str(data / "digit/caddeo2023/background.png")))
+    tacto = DigitRenderer.from_default_config(cv2.imread(str(data / "digit/tacto/bg_digit_240_320.jpg")))
     rng = np.random.default_rng([args.seed, 1])  # a stream apart from the calibration's
     nc_paper = paper.no_contact(seed=int(rng.integers(2**31)))
     nc_tacto = tacto.no_contact(seed=int(rng.integers(2**31)))

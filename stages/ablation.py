@@ -1,7 +1,8 @@
 """Stage ablation: the effect of each accuracy switch (normals, best_n, refinement) for L = 1, 2, 3 sensors.
 
-Every variant of config section ``ablation.variants`` is merged over the ``select``, ``optimize`` and
-``rank`` sections (method ``ours``; solver ``ablation.solver`` unless the variant sets its own), and each
+Every variant of config section ``ablation.variants`` is applied to the ``select``, ``optimize`` and
+``rank`` sections (``tactile6d.variants``: method ``ours``; solver ``ablation.solver`` unless the variant
+sets its own; a variant may start from a preset's sections), and each
 scene of the set is estimated from every subset of 1, 2 and 3 of its sensors (``tactile6d.sensor_subsets``,
 as in sensor_study). Variants run in ``ablation.workers`` processes; two variants that come out as the
 same settings (e.g. the last step of the chain and ``default``) are estimated once. Reads the scenes and
@@ -11,7 +12,6 @@ each object's artifacts; writes ``artifacts/metrics/ablation_<set>.json``: varia
 
 from __future__ import annotations
 
-import json
 import multiprocessing
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -26,24 +26,7 @@ from tactile6d.estimator import Estimator
 from tactile6d.io import read_artifact, write_json
 from tactile6d.optimize import use_cpu_devices
 from tactile6d.sensor_subsets import evaluate_sensor_count
-
-SECTIONS = ("select", "optimize", "rank")
-
-
-def variant_config(cfg, name: str, overrides):
-    """The composed config with one variant's overrides (a mapping of select/optimize/rank keys) merged in."""
-    overrides = OmegaConf.to_container(overrides) if overrides is not None else {}
-    unknown = sorted(set(overrides) - set(SECTIONS))
-    if unknown:
-        raise ConfigError(f"ablation.variants.{name} may override only {', '.join(SECTIONS)}, not {unknown}")
-    base = {"select": {"method": "ours"}, "optimize": {"solver": str(cfg.ablation.solver)}}
-    return OmegaConf.merge(cfg, base, overrides)
-
-
-def estimator_settings_key(cfg) -> str:
-    """The sections an estimate depends on, as canonical JSON: equal keys give equal estimates."""
-    return json.dumps({s: OmegaConf.to_container(cfg[s], resolve=True) for s in SECTIONS}, sort_keys=True)
-
+from tactile6d.variants import estimator_settings_key, variant_config
 
 def evaluate_variant(cfg_container: dict, scene_set: str, name: str, progress: bool) -> dict[str, dict[str, float]]:
     """One variant: ``L1``, ``L2``, ... -> summary with ``time_s_median``. Reads its own inputs, so that

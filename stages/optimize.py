@@ -21,8 +21,6 @@ from tactile6d.io import read_artifact, write_artifact
 from tactile6d.object_artifacts import load_surface_normals, load_surface_points
 from tactile6d.optimize import use_cpu_devices
 from tactile6d.run_artifacts import (
-    CONTACT_FIELDS,
-    PATCH_FIELDS,
     carried,
     compact_hypotheses,
     median_or_nan,
@@ -31,6 +29,7 @@ from tactile6d.run_artifacts import (
     scene_rows,
     stack_ragged,
 )
+from tactile6d.schemas import CONTACT_FIELDS, PATCH_FIELDS
 from tactile6d.settings import OptimizeSettings
 from tactile6d.steps.optimize import optimize
 

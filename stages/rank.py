@@ -21,13 +21,13 @@ from tactile6d.contact import sample_surface
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.run_artifacts import (
-    CONTACT_FIELDS,
     carried,
     expand_hypotheses,
     median_or_nan,
     parse_run_stage_args,
     scene_contacts,
 )
+from tactile6d.schemas import CONTACT_FIELDS
 from tactile6d.settings import RankSettings
 from tactile6d.steps.rank import load_mesh, load_pieces, rank
 

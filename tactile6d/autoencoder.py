@@ -63,15 +63,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from tactile6d.errors import ArtifactError, ConfigError, InputError
-from tactile6d.io import Schema, register_schema
 
 CHECKPOINT_FORMAT = "tactile6d-autoencoder-v1"
 
-# Made by stage encode_database: the database latents (M, 128), the no-contact latent (128,) and each
-# database image's latent angle (M,) in radians.
-register_schema(Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")))
-# absent in configs and checkpoints older than these switches
-_OPTIONAL_KEYS = ("peak_floor", "input_offset", "rank_weight", "rank_margin")
 _CHECKPOINT_KEYS = ("format", "state_dict", "norm", "cfg", "history")
 # Images preprocessed at once: bounds the float32 copy of full-size images (about 0.9 MB each).
 _PREPROCESS_CHUNK = 256
@@ -93,17 +87,17 @@ class AEConfig:
     val_fraction: float
     threads: int
     device: str
-    peak_floor: float | None = None
-    input_offset: float = 0.0
-    rank_weight: float = 0.0
-    rank_margin: float = 0.2
+    peak_floor: float | None
+    input_offset: float
+    rank_weight: float
+    rank_margin: float
 
     @classmethod
     def from_cfg(cls, cfg: Mapping | AEConfig) -> AEConfig:
         """Read the fields from a mapping (dict or DictConfig); extra keys (``seed``) are ignored."""
         if isinstance(cfg, AEConfig):
             return cfg
-        missing = [name for name in cls.__dataclass_fields__ if name not in cfg and name not in _OPTIONAL_KEYS]
+        missing = [name for name in cls.__dataclass_fields__ if name not in cfg]
         if missing:
             raise ConfigError(f"ae config lacks keys {missing}")
         channels = tuple(int(c) for c in cfg["channels"])
@@ -120,10 +114,10 @@ class AEConfig:
             val_fraction=float(cfg["val_fraction"]),
             threads=int(cfg["threads"]),
             device=str(cfg["device"]),
-            peak_floor=None if cfg.get("peak_floor") is None else float(cfg["peak_floor"]),
-            input_offset=float(cfg.get("input_offset", 0.0)),
-            rank_weight=float(cfg.get("rank_weight", 0.0)),
-            rank_margin=float(cfg.get("rank_margin", 0.2)),
+            peak_floor=None if cfg["peak_floor"] is None else float(cfg["peak_floor"]),
+            input_offset=float(cfg["input_offset"]),
+            rank_weight=float(cfg["rank_weight"]),
+            rank_margin=float(cfg["rank_margin"]),
         )
         if len(channels) != 4 or min(channels) < 1:
             raise ConfigError(f"ae.channels must be 4 positive integers, got {list(channels)}")
@@ -159,8 +153,8 @@ class Normalisation:
     height: int
     width: int
     scale: tuple[float, float, float]
-    peak_floor: float | None = None
-    offset: float = 0.0
+    peak_floor: float | None
+    offset: float
 
     def to_dict(self) -> dict:
         return {"height": self.height, "width": self.width, "scale": list(self.scale), "peak_floor": self.peak_floor,
@@ -171,11 +165,11 @@ class Normalisation:
         scale = tuple(float(s) for s in d["scale"])
         if len(scale) != 3 or not all(np.isfinite(scale)) or min(scale) <= 0.0:
             raise ValueError(f"scale must be 3 positive numbers, got {scale}")
-        floor = d.get("peak_floor")
+        floor = d["peak_floor"]
         if floor is not None and not float(floor) > 0.0:
             raise ValueError(f"peak_floor must be None or > 0, got {floor}")
         return cls(height=int(d["height"]), width=int(d["width"]), scale=scale,
-                   peak_floor=None if floor is None else float(floor), offset=float(d.get("offset", 0.0)))
+                   peak_floor=None if floor is None else float(floor), offset=float(d["offset"]))
 
 
 # --- the network -------------------------------------------------------------------------------------

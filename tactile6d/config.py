@@ -10,6 +10,7 @@ Two sources give the same tree:
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import yaml
@@ -45,6 +46,17 @@ def compose_config(overrides: list[str] | tuple[str, ...] = (), conf_dir: Path |
         raise ConfigError(f"bad config override in {list(overrides)}: {' '.join(str(exc).split())}") from exc
     OmegaConf.set_struct(cfg, True)
     return cfg
+
+
+@functools.lru_cache(maxsize=None)
+def _default_config() -> DictConfig:
+    return compose_config()
+
+
+def default_section(key: str) -> dict:
+    """A plain copy of section ``key`` of the default config (``conf/``, or the installed copy): the
+    settings library code uses when its caller gives none, so that every default lives in conf/ only."""
+    return section_to_dict(_default_config(), key)
 
 
 def load_params(params_file: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:

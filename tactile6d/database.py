@@ -47,38 +47,8 @@ import numpy as np
 from tactile6d import sensor
 from tactile6d.errors import ConfigError
 from tactile6d.geometry import invert_pose
-from tactile6d.io import Artifact, Schema, register_schema
+from tactile6d.io import Artifact
 from tactile6d.render import DigitRenderer, MeshArrays, add_noise, inside_body
-
-_IMAGE_DATASETS = (
-    "background",
-    "noise_std",
-    "noise_seeds",
-    "images/data",
-    "images/offsets",
-    "masks/data",
-    "masks/offsets",
-    "mask_pixels",
-    "body_contact",
-)
-
-# M surface points, the sensor touching each, and its image (compact, see the module docstring).
-DATABASE_SCHEMA = Schema(
-    "database",
-    1,
-    "render_database",
-    ("points", "normals", "T_object_sensor", "rolls", "depths", "no_contact", *_IMAGE_DATASETS),
-)
-# Contacts with random superquadrics: images (compact) and each image's shape and placement.
-TRAINING_SET_SCHEMA = Schema(
-    "training_set",
-    1,
-    "make_training_set",
-    ("T_object_sensor", "shape_index", "axes", "exponents", "depths", "rolls", "kinds", "no_contact",
-     *_IMAGE_DATASETS),
-)
-register_schema(DATABASE_SCHEMA)
-register_schema(TRAINING_SET_SCHEMA)
 
 _ZLIB_LEVEL = 6  # smaller images than level 1 for a few ms more per image (docs/simulator.md, Databases)
 _RENDER_BATCH = 128  # poses per render_many call: bounds the uint8 images held at once (30 MB)

@@ -3,8 +3,8 @@
 The geometry is the simulator's (``tactile6d.render``): one ray per ``step`` x ``step`` pixel block from
 the DIGIT camera, the object's camera-facing triangles in front of the gel, the first hit of each ray
 (Embree), and the press depth ``gel distance - hit distance`` along the camera axis (sensor +x): the
-``depth`` of ``DigitRenderer(render_step=step, strict=False).contact`` itself (no force shift, as the
-scenes use).
+``depth`` of the renderer's ``contact`` itself, with ``render_step=step``, ``strict=False`` and no force
+shift, as the scenes use.
 
 The image-consistent contact metric compares the contact masks (``depth > 0``) predicted at an estimated
 pose and at the true pose, sensor by sensor, by their intersection over union.
@@ -32,7 +32,7 @@ def depth_renderer(step: int) -> DigitRenderer:
     Embree device per step and process (a renderer is not thread-safe).
     """
     blank = np.zeros((sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH, 3), dtype=np.uint8)
-    return DigitRenderer(blank, render_step=int(step), strict=False, force=0.0)
+    return DigitRenderer.from_default_config(blank, render_step=int(step), strict=False, force=0.0, workers=1)
 
 
 def poses_to_gel_depths(

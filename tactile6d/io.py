@@ -1,7 +1,7 @@
 """HDF5 artifacts: atomic writes, stamped with their schema and config, validated on reading.
 
 Every artifact a stage writes is one HDF5 file whose root attributes say what it is:
-``schema`` (a name from ``SCHEMAS``), ``schema_version``, ``config`` (the JSON of the config sections
+``schema`` (a name from ``tactile6d.schemas.SCHEMAS``), ``schema_version``, ``config`` (the JSON of the config sections
 it was made with), ``tactile6d_version``. Writing goes to a temporary file beside the target and is
 renamed into place only once complete, so a crash never leaves a half-written artifact under the real
 name. Reading checks the stamp and the datasets the schema requires, and fails with one line that names
@@ -14,7 +14,7 @@ import json
 import os
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,65 +23,14 @@ import numpy as np
 
 from tactile6d import __version__
 from tactile6d.errors import ArtifactError
-
-
-@dataclass(frozen=True)
-class Schema:
-    """What an artifact of one kind must hold, and which stage makes it."""
-
-    name: str
-    version: int
-    stage: str
-    datasets: tuple[str, ...]
-    groups: tuple[str, ...] = field(default=())
-
-
-SCHEMAS: dict[str, Schema] = {
-    s.name: s
-    for s in [
-        # a cleaned object: mesh, collision pieces (concatenated, with offsets), metric points
-        Schema(
-            "object",
-            1,
-            "prepare_object",
-            ("vertices", "faces", "collision_vertices", "collision_faces", "collision_vertex_offsets",
-             "collision_face_offsets", "metric_points"),
-        ),
-        # M surface points with outward unit normals, in the object frame
-        Schema("surface", 1, "sample_surface", ("points", "normals", "face_index")),
-    ]
-}
-
-
-# Schemas defined next to the code that makes their artifacts, imported on first use.
-_SCHEMA_MODULES = {
-    "scenes": "tactile6d.scenes",
-    "database": "tactile6d.database",
-    "training_set": "tactile6d.database",
-    "latents": "tactile6d.autoencoder",
-    "tuples": "tactile6d.estimator",
-    "hypotheses": "tactile6d.estimator",
-    "ranked": "tactile6d.estimator",
-}
+from tactile6d.schemas import SCHEMAS, Schema
 
 
 def get_schema(name: str) -> Schema:
-    """The schema called ``name``, importing the module that defines it if needed."""
-    if name not in SCHEMAS and name in _SCHEMA_MODULES:
-        import importlib
-
-        importlib.import_module(_SCHEMA_MODULES[name])
+    """The schema called ``name`` (``tactile6d.schemas.SCHEMAS``)."""
     if name not in SCHEMAS:
         raise ValueError(f"unknown artifact schema {name!r}")
     return SCHEMAS[name]
-
-
-def register_schema(schema: Schema) -> None:
-    """Add a schema (modules that define new artifact kinds call this at import time)."""
-    existing = SCHEMAS.get(schema.name)
-    if existing is not None and existing != schema:
-        raise ValueError(f"schema {schema.name!r} registered twice with different definitions")
-    SCHEMAS[schema.name] = schema
 
 
 def _remake_hint(schema: Schema) -> str:

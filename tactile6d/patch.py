@@ -56,6 +56,7 @@ import scipy.sparse.linalg
 
 from tactile6d import sensor
 from tactile6d import superquadrics as sq
+from tactile6d.config import default_section
 from tactile6d.errors import DataError, InputError
 from tactile6d.geometry import (
     axis_angle_to_rotmat,
@@ -666,12 +667,14 @@ def fit_model(
 
 def calibration_renderer(render_config: Mapping | None = None, **overrides) -> DigitRenderer:
     """The renderer calibration uses: the DIGIT model of ``render_config`` (the ``render`` config section;
-    None: the renderer's own defaults) over a flat mid-grey background, so that no difference clips."""
+    None: the default config's) over a flat mid-grey background, so that no difference clips."""
     grey = np.full((H, W, 3), 128, dtype=np.uint8)
-    return DigitRenderer.from_config(render_config or {}, grey, **overrides)
+    if render_config is None:
+        return DigitRenderer.from_default_config(grey, **overrides)
+    return DigitRenderer.from_config(render_config, grey, **overrides)
 
 
-def calibration_set(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer | None = None):
+def calibration_set(n_presses: int, seed: int, renderer: DigitRenderer | None = None):
     """Simulated presses to calibrate on -> images (n, H, W, 3) uint8, depths (n, H, W) float32 m, normals
     (n, H, W, 3) float32 (``render_presses``), and the renderer's no-contact image (H, W, 3) uint8.
 
@@ -686,7 +689,7 @@ def calibration_set(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer 
     return images, depths, normals, no_contact
 
 
-def calibrate(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer | None = None, **settings) -> PatchModel:
+def calibrate(n_presses: int, seed: int, renderer: DigitRenderer | None = None, **settings) -> PatchModel:
     """Calibrate from simulated presses (``calibration_set``, then ``fit_model`` with ``settings``) -> PatchModel."""
     images, depths, normals, no_contact = calibration_set(n_presses, seed, renderer)
     return fit_model(images, no_contact, normals, depths, seed=seed, **settings)
@@ -694,8 +697,10 @@ def calibrate(n_presses: int = 60, seed: int = 0, renderer: DigitRenderer | None
 
 @functools.lru_cache(maxsize=1)
 def default_model() -> PatchModel:
-    """``calibrate()`` with its defaults, computed once per process."""
-    return calibrate()
+    """``calibrate`` as the default config's ``patch`` section says (what stage calibrate_patch makes),
+    computed once per process."""
+    cfg = default_section("patch")
+    return calibrate(int(cfg["n_presses"]), int(cfg["seed"]))
 
 
 # --- saving ----------------------------------------------------------------------------------------------

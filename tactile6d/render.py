@@ -44,7 +44,8 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from tactile6d import sensor
-from tactile6d.errors import DataError, InputError, MeshError
+from tactile6d.config import default_section
+from tactile6d.errors import ConfigError, DataError, InputError, MeshError
 from tactile6d.geometry import invert_pose, make_pose
 
 # --- TACTO's config_digit.yml, in the DIGIT frame ------------------------------------------------------
@@ -312,18 +313,20 @@ class _RayCaster:
 class DigitRenderer:
     """Simulated DIGIT images over a real no-contact background.
 
+    Every setting is the ``render`` config section's key of the same name (conf/render/default.yaml, which
+    gives the values and their origin); ``from_config`` builds one from that section.
+
     background (h, w, 3) uint8 in OpenCV's BGR order (TACTO's convention; flipped to RGB here); another
     size than (height, width) is resized with a warning. noise_std: Gaussian noise on 0..255. blur_ksize:
-    odd Gaussian kernel of the difference image. diff_scale: TACTO's 0.5. light_intensity: see the module
-    docstring. max_press (m): deeper presses raise InputError (the object would be inside the body).
-    render_step: cast one ray per ``render_step`` x ``render_step`` pixel block and upsample (1 = every
-    pixel; 2, the default, casts a quarter of the rays, and the mask and depth are then blocky by 2
-    pixels; its speed and difference from 1: docs/simulator.md). force: TACTO's
-    normal force in [0, 100]; it moves the object toward the camera by force / 100 x ``max_deformation``
-    (0 by default: the shift is negligible in the paper's images). workers: processes for
-    ``render_many``. strict: raise InputError when the object is inside the sensor body (``inside_body``,
-    or a press deeper than ``max_press``); when False, render what the camera would see, as TACTO does
-    (a database sampled on sharp edges or concave parts has such poses).
+    odd Gaussian kernel of the difference image. diff_scale: the difference image's scale before the
+    blur. light_intensity: see the module docstring. max_press (m): deeper presses raise InputError (the
+    object would be inside the body). render_step: cast one ray per ``render_step`` x ``render_step``
+    pixel block and upsample (1 = every pixel; 2 casts a quarter of the rays, and the mask and depth are
+    then blocky by 2 pixels). force: TACTO's normal force in [0, 100]; it moves the object toward the
+    camera by force / 100 x ``max_deformation``. workers: processes for ``render_many``. strict: raise
+    InputError when the object is inside the sensor body (``inside_body``, or a press deeper than
+    ``max_press``); when False, render what the camera would see, as TACTO does (a database sampled on
+    sharp edges or concave parts has such poses).
 
     Not thread-safe; use one renderer per thread. ``close()`` (or ``with``) ends the worker processes.
     """
@@ -331,18 +334,19 @@ class DigitRenderer:
     def __init__(
         self,
         background: np.ndarray,
-        noise_std: float = 7.0,
-        blur_ksize: int = 7,
-        diff_scale: float = 0.5,
-        light_intensity: float = 0.0041,
-        max_press: float = GEL_CURVATURE_MAX,
-        render_step: int = 2,
-        force: float = 0.0,
-        max_deformation: float = 0.005,
-        width: int = sensor.IMAGE_WIDTH,
-        height: int = sensor.IMAGE_HEIGHT,
-        workers: int = 1,
-        strict: bool = True,
+        *,
+        noise_std: float,
+        blur_ksize: int,
+        diff_scale: float,
+        light_intensity: float,
+        max_press: float,
+        render_step: int,
+        force: float,
+        max_deformation: float,
+        width: int,
+        height: int,
+        workers: int,
+        strict: bool,
     ):
         if blur_ksize < 1 or blur_ksize % 2 == 0:
             raise ValueError(f"blur_ksize must be odd and positive, got {blur_ksize}")
@@ -395,12 +399,21 @@ class DigitRenderer:
 
     @classmethod
     def from_config(cls, config: Mapping, background: np.ndarray, **overrides) -> DigitRenderer:
-        """A renderer from the ``render`` config section (conf/render/default.yaml); keys that are not
-        constructor arguments (background path, database placement) are ignored."""
+        """A renderer from the ``render`` config section (conf/render/default.yaml), with ``overrides``
+        (constructor arguments) on top; keys that are not constructor arguments (background path, database
+        placement) are ignored. A ConfigError names any setting that neither gives."""
         names = set(inspect.signature(cls.__init__).parameters) - {"self", "background"}
         kwargs = {key: config[key] for key in config if key in names}
         kwargs.update(overrides)
+        missing = sorted(names - set(kwargs))
+        if missing:
+            raise ConfigError(f"render config lacks keys {missing}")
         return cls(background, **kwargs)
+
+    @classmethod
+    def from_default_config(cls, background: np.ndarray, **overrides) -> DigitRenderer:
+        """``from_config`` on the default config's ``render`` section (``config.default_section``)."""
+        return cls.from_config(default_section("render"), background, **overrides)
 
     # -- single images ------------------------------------------------------------------------------
 

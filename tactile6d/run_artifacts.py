@@ -18,29 +18,7 @@ from omegaconf import OmegaConf
 from tactile6d.config import load_config
 from tactile6d.contacts import Contacts
 from tactile6d.geometry import make_pose, rotmat_to_rotvec, rotvec_to_rotmat
-from tactile6d.io import Schema, register_schema
 from tactile6d.settings import METHODS
-
-CARRIED_FIELDS = ("names", "objects", "T_world_sensors", "failure")  # written by all three stages
-# The sensors' contacts (tactile6d.contacts), per scene and sensor: points (S, L, 3), normals (S, L, 3), from_patch
-# (S, L); the observed patches (S, L, 320, 240) mask and depth, or (S, L, 0, 0) for landmark contacts.
-CONTACT_FIELDS = ("contact_points", "contact_normals", "contact_from_patch")
-PATCH_FIELDS = ("contact_masks", "contact_depths")
-register_schema(Schema(
-    "tuples", 2, "select_tuples",
-    CARRIED_FIELDS + CONTACT_FIELDS + PATCH_FIELDS + ("tuples", "errors", "offsets", "angles", "omega_sizes", "delta_h", "widened", "delta_d",
-                      "capped", "seconds_encode", "seconds_select"),
-))
-register_schema(Schema(
-    "hypotheses", 2, "optimize",
-    CARRIED_FIELDS + CONTACT_FIELDS + PATCH_FIELDS + ("translations", "rotvecs", "losses", "tuple_index", "offsets", "seconds_encode",
-                      "seconds_select", "seconds_optimize"),
-))
-register_schema(Schema(
-    "ranked", 2, "rank",
-    CARRIED_FIELDS + CONTACT_FIELDS + ("poses", "scores", "losses", "penetrations", "n_poses", "seconds_encode", "seconds_select",
-                      "seconds_optimize", "seconds_rank"),
-))
 
 
 def stack_ragged(parts: Sequence[np.ndarray], row_shape: tuple[int, ...], dtype) -> tuple[np.ndarray, np.ndarray]:
@@ -55,8 +33,8 @@ def scene_rows(data: np.ndarray, offsets: np.ndarray, scene: int) -> np.ndarray:
     return data[offsets[scene] : offsets[scene + 1]]
 
 def stack_contacts(contacts: Sequence[Contacts], n_sensors: int) -> dict[str, np.ndarray]:
-    """Each scene's contacts (L = n_sensors each) -> the CONTACT_FIELDS and PATCH_FIELDS arrays (module
-    comment). The patches are kept only when every scene has them (source ``patch``)."""
+    """Each scene's contacts (L = n_sensors each) -> the CONTACT_FIELDS and PATCH_FIELDS arrays
+    (tactile6d.schemas). The patches are kept only when every scene has them (source ``patch``)."""
     observed = bool(contacts) and all(c.observed for c in contacts)
     empty = np.zeros((len(contacts), n_sensors, 0, 0))
     return {

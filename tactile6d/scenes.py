@@ -27,8 +27,9 @@ from tactile6d.geometry import (
     rotvec_to_rotmat,
     transform_points,
 )
-from tactile6d.io import Artifact, Schema, register_schema
+from tactile6d.io import Artifact
 from tactile6d.render import CAMERA_POSITION, gel_surface
+from tactile6d.schemas import SCENE_FIELDS
 from tactile6d.sensor import (
     BOX_CENTER,
     BOX_HALF_EXTENTS,
@@ -63,10 +64,6 @@ class SceneSet:
         return {k: getattr(self, k) for k in SCENE_FIELDS}
 
 
-SCENE_FIELDS = ("names", "objects", "T_world_object", "T_world_sensors", "images", "contact_points",
-                "contact_normals", "contact_types")
-
-register_schema(Schema("scenes", 1, "make_scenes", SCENE_FIELDS))
 
 
 def scene_set_from_artifact(art: Artifact) -> SceneSet:

@@ -79,7 +79,7 @@ def test_odd_sizes_round_trip():
 def test_preprocess_maps_background_to_zero_and_averages_blocks():
     bg = background()
     imgs = np.stack([bg, np.clip(bg.astype(int) + 8, 0, 255).astype(np.uint8)])
-    norm = ae.Normalisation(height=80, width=60, scale=(2.0, 4.0, 8.0))
+    norm = ae.Normalisation(height=80, width=60, scale=(2.0, 4.0, 8.0), peak_floor=None, offset=0.0)
     x = ae.preprocess(imgs, bg, norm)
     assert x.shape == (2, 3, 80, 60) and x.dtype == torch.float32
     assert torch.all(x[0] == 0)
@@ -104,16 +104,16 @@ def test_preprocess_with_peak_floor_gives_unit_peaks():
     pressed = bg.astype(int)
     pressed[100:140, 80:120] += 40
     imgs = np.stack([bg, np.clip(pressed, 0, 255).astype(np.uint8)])
-    x = ae.preprocess(imgs, bg, ae.Normalisation(height=64, width=48, scale=(1.0, 1.0, 1.0), peak_floor=20.0))
+    x = ae.preprocess(imgs, bg, ae.Normalisation(height=64, width=48, scale=(1.0, 1.0, 1.0), peak_floor=20.0, offset=0.0))
     assert torch.all(x[0] == 0)
     assert float(x[1].abs().sum(dim=0).max()) == pytest.approx(1.0, rel=1e-5)
 
 
-def test_normalisation_dict_round_trip_and_old_checkpoints_without_peak_floor_or_offset():
+def test_normalisation_dict_round_trip_and_incomplete_ones_refused():
     norm = ae.Normalisation(32, 24, (1.0, 2.0, 3.0), peak_floor=20.0, offset=0.5)
     assert ae.Normalisation.from_dict(norm.to_dict()) == norm
-    old = ae.Normalisation.from_dict({"height": 32, "width": 24, "scale": [1, 2, 3]})
-    assert old.peak_floor is None and old.offset == 0.0
+    with pytest.raises(KeyError, match="offset"):
+        ae.Normalisation.from_dict({"height": 32, "width": 24, "scale": [1, 2, 3], "peak_floor": None})
     with pytest.raises(ValueError, match="peak_floor"):
         ae.Normalisation.from_dict({**norm.to_dict(), "peak_floor": 0.0})
 
@@ -125,6 +125,14 @@ def test_normalisation_dict_round_trip_and_old_checkpoints_without_peak_floor_or
 def test_bad_ae_settings_are_config_errors_naming_the_key(key, value):
     with pytest.raises(ConfigError, match=f"ae.{key}"):
         ae.AEConfig.from_cfg(small_cfg(**{key: value}))
+
+
+@pytest.mark.parametrize("key", ["rank_weight", "peak_floor", "input_offset"])
+def test_every_ae_setting_comes_from_the_config(key):
+    cfg = small_cfg()
+    del cfg[key]
+    with pytest.raises(ConfigError, match=f"ae config lacks keys \\['{key}'\\]"):
+        ae.AEConfig.from_cfg(cfg)
 
 
 def test_bootstrapped_l2_is_mean_of_largest_quarter():
@@ -164,7 +172,7 @@ def test_encode_is_deterministic_and_background_is_its_own_reference(small_set):
     bg, imgs = small_set
     torch.manual_seed(0)
     model = ae.build_model(small_cfg())
-    norm = ae.Normalisation(32, 24, (5.0, 5.0, 5.0))
+    norm = ae.Normalisation(32, 24, (5.0, 5.0, 5.0), None, 0.0)
     h1 = ae.encode(model, norm, imgs, bg, batch_size=16)
     h2 = ae.encode(model, norm, imgs, bg, batch_size=16)
     assert h1.shape == (len(imgs), 128) and h1.dtype == np.float32
@@ -215,7 +223,7 @@ def test_checkpoint_round_trip(tmp_path, small_set):
     cfg = small_cfg()
     torch.manual_seed(0)
     model = ae.build_model(cfg)
-    norm = ae.Normalisation(32, 24, (1.5, 2.5, 3.5))
+    norm = ae.Normalisation(32, 24, (1.5, 2.5, 3.5), None, 0.0)
     path = tmp_path / "sub" / "ae.pt"
     # NumPy values in the history must not make the checkpoint unloadable with weights_only=True
     ae.save_checkpoint(path, model, norm, cfg, {"train_loss": np.array([1.0, 0.5]), "seconds": [np.float64(2)]})
@@ -235,7 +243,7 @@ def _expect_artifact_error(path, fragment):
 def test_bad_checkpoints_raise_artifact_errors(tmp_path):
     cfg = small_cfg()
     model = ae.build_model(cfg)
-    norm = ae.Normalisation(32, 24, (1.0, 1.0, 1.0))
+    norm = ae.Normalisation(32, 24, (1.0, 1.0, 1.0), None, 0.0)
 
     _expect_artifact_error(tmp_path / "absent.pt", "missing")
 

@@ -114,7 +114,7 @@ def rendered():
     the cut face elsewhere), each 3-4 mm off the gel centre and tilted 12-18 deg, pressed 1.5 mm deep, and
     their rendered images (a synthetic background)."""
     mesh = cut_box()
-    renderer = DigitRenderer(smooth_background())
+    renderer = DigitRenderer.from_default_config(smooth_background())
     cut = np.array([HALF - np.eye(3)[a] * CUTS[a] for a in range(3)])
     cut_normal = np.cross(cut[1] - cut[0], cut[2] - cut[0])
     cut_normal *= np.sign(cut_normal @ cut.mean(axis=0)) / np.linalg.norm(cut_normal)
@@ -206,7 +206,7 @@ def test_render_and_compare_ranks_the_true_pose_first_where_the_point_loss_ties(
     sensors = T_true @ sensor.sensor_poses_touching(p, n, [0.3, -0.5, 1.2], 0.0018)
     shifted = T_true @ make_pose(np.eye(3), [-0.003, 0.0, 0.0])
     poses, losses = np.stack([shifted, T_true]), np.zeros(2)
-    renderer = DigitRenderer(np.full((H, W, 3), 128, np.uint8), render_step=1, strict=False)
+    renderer = DigitRenderer.from_default_config(np.full((H, W, 3), 128, np.uint8), render_step=1, strict=False)
     depths = np.stack([renderer.contact(mesh, invert_pose(T) @ T_true)[1] for T in sensors])
     observed = contacts.Contacts(sensor.contact_points(sensors), sensor.contact_normals(sensors),
                                  np.ones(3, bool), depths > 2e-4, depths)

@@ -238,7 +238,7 @@ def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
     cfg.update(input_height=32, input_width=24, channels=[4, 8, 8, 16])
     torch.manual_seed(0)  # build_model draws its weights from torch's global generator
     model = ae.build_model(cfg)
-    ae.save_checkpoint(layout.ae_checkpoint(artifacts), model, ae.Normalisation(32, 24, (10.0, 10.0, 10.0)), cfg, {})
+    ae.save_checkpoint(layout.ae_checkpoint(artifacts), model, ae.Normalisation(32, 24, (10.0, 10.0, 10.0), None, 0.0), cfg, {})
     latents = np.random.default_rng(1).normal(size=(n_points, 128)).astype(np.float32)
     write_artifact(layout.latents_file(artifacts, name), "latents",
                    {"latents": latents, "latent_nc": np.ones(128, np.float32),

@@ -36,7 +36,7 @@ def perturbed(T, rotvec, shift):
 @pytest.mark.parametrize("step", [4, 8])
 def test_depth_equals_the_renderers_on_the_same_grid(box, step):
     rounded = make_primitive("prim_rounded_box")
-    renderer = DigitRenderer(np.zeros((320, 240, 3), np.uint8), render_step=step, strict=False, noise_std=0.0)
+    renderer = DigitRenderer.from_default_config(np.zeros((320, 240, 3), np.uint8), render_step=step, strict=False, noise_std=0.0)
     rng = np.random.default_rng(0)
     for mesh in (box, rounded):
         sensors = box_sensors(T_GT) if mesh is box else T_GT @ sensor_poses_touching(

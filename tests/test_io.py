@@ -4,11 +4,16 @@ import subprocess
 import sys
 import textwrap
 
+from pathlib import Path
+
+import h5py
 import numpy as np
 import pytest
+import yaml
 
 from tactile6d.errors import ArtifactError
 from tactile6d.io import read_artifact, write_artifact
+from tactile6d.schemas import SCHEMAS
 
 
 def surface_data(n=10):
@@ -45,6 +50,22 @@ def test_wrong_schema_is_named(tmp_path):
     path = write_artifact(tmp_path / "s.h5", "surface", surface_data())
     with pytest.raises(ArtifactError, match=r"schema is 'surface' but 'object' was expected.*prepare_object"):
         read_artifact(path, "object")
+
+
+def test_an_older_format_is_refused_naming_the_stage_that_remakes_it(tmp_path):
+    # A training set from before contact_types (schema version 1) must not reach train_ae.
+    path = write_artifact(tmp_path / "t.h5", "surface", surface_data())
+    with h5py.File(path, "r+") as f:
+        f.attrs["schema"], f.attrs["schema_version"] = "training_set", 1
+    with pytest.raises(ArtifactError, match=r"'training_set' version 1, this code reads version 2.*make_training_set"):
+        read_artifact(path, "training_set")
+
+
+def test_every_schema_is_made_by_a_pipeline_stage():
+    stages = yaml.safe_load((Path(__file__).parents[1] / "dvc.yaml").read_text())["stages"]
+    for schema in SCHEMAS.values():
+        assert schema.stage in stages, schema
+        assert len(set(schema.datasets)) == len(schema.datasets), schema
 
 
 def test_writer_refuses_incomplete_data(tmp_path):

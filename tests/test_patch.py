@@ -38,7 +38,7 @@ def background():
 
 @pytest.fixture(scope="module")
 def renderer(background):
-    return DigitRenderer(background)
+    return DigitRenderer.from_default_config(background)
 
 
 @pytest.fixture(scope="module")
@@ -177,7 +177,7 @@ def test_another_units_background(data_dir, mesh_of, model):
     bg = cv2.imread(str(data_dir / "digit" / "tacto" / "bg_digit_240_320.jpg"))
     if bg is None:
         pytest.skip("TACTO's background image is not in the data directory")
-    other = DigitRenderer(bg)
+    other = DigitRenderer.from_default_config(bg)
     result, p_true, n_true, _ = press(other, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0], tilt_axis=2.0,
                                    tilt=0.25, offset=(-0.002, 0.003), seed=9)
     est = patch.image_to_patch(result.image, other.no_contact(seed=77), model)

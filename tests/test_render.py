@@ -8,7 +8,8 @@ import trimesh
 
 from tactile6d import geometry as g
 from tactile6d import sensor
-from tactile6d.errors import InputError, MeshError
+from tactile6d.config import compose_config
+from tactile6d.errors import ConfigError, InputError, MeshError
 from tactile6d.render import DigitRenderer, gel_surface, mesh_arrays, pixel_rays
 
 H, W = sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH
@@ -24,7 +25,7 @@ def background():
 
 @pytest.fixture(scope="module")
 def renderer(background):
-    return DigitRenderer(background)
+    return DigitRenderer.from_default_config(background)
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +65,7 @@ def test_no_contact_is_the_background_plus_noise(renderer, sphere):
 
 
 def test_noise_free_no_contact_is_exactly_the_rgb_background(background):
-    quiet = DigitRenderer(background, noise_std=0.0)
+    quiet = DigitRenderer.from_default_config(background, noise_std=0.0)
     np.testing.assert_array_equal(quiet.no_contact(seed=0), background[..., ::-1])
 
 
@@ -126,7 +127,7 @@ def test_image_orientation_rows_along_minus_z_columns_along_minus_y(renderer, sp
 
 def test_red_light_side_is_brighter_in_the_red_channel(background, sphere):
     """The red light sits at +y, +z: a sphere's slope facing it (top left of the image) turns red."""
-    quiet = DigitRenderer(background, noise_std=0.0)
+    quiet = DigitRenderer.from_default_config(background, noise_std=0.0)
     result = quiet.render(sphere, IDENTITY, touching([0.015, 0, 0], [1, 0, 0], depth=0.002), seed=0)
     diff = result.image.astype(float) - quiet.background
     top_left = diff[: H // 2, : W // 2][result.mask[: H // 2, : W // 2]]
@@ -147,9 +148,9 @@ def test_render_many_matches_render(renderer, cube):
 
 def test_render_many_with_two_worker_processes(background, cube):
     T = touching(np.tile([0.02, 0.0, 0.0], (16, 1)), np.tile([1.0, 0, 0], (16, 1)), np.linspace(0, 3, 16))
-    with DigitRenderer(background, workers=2) as parallel:
+    with DigitRenderer.from_default_config(background, workers=2) as parallel:
         images, masks = parallel.render_many(cube, T, seeds=100)
-    serial = DigitRenderer(background)
+    serial = DigitRenderer.from_default_config(background)
     np.testing.assert_array_equal(images[9], serial.render(cube, IDENTITY, T[9], seed=109).image)
     assert masks.all(axis=(1, 2)).sum() == 0 and masks.any(axis=(1, 2)).all()
 
@@ -166,7 +167,7 @@ def test_object_inside_the_body_is_an_input_error(renderer, cube):
 
 
 def test_lenient_renderer_renders_an_object_inside_the_body(background, cube):
-    lenient = DigitRenderer(background, strict=False)
+    lenient = DigitRenderer.from_default_config(background, strict=False)
     result = lenient.render(cube, IDENTITY, touching([0.02, 0, 0], [1, 0, 0], depth=0.006), seed=0)
     assert result.mask.mean() > 0.9
 
@@ -184,11 +185,22 @@ def test_degenerate_meshes_are_mesh_errors(renderer):
 def test_background_of_the_wrong_size_is_resized_with_a_warning(background):
     small = background[::2, ::2]
     with pytest.warns(UserWarning, match="resized"):
-        resized = DigitRenderer(small)
+        resized = DigitRenderer.from_default_config(small)
     assert resized.no_contact(seed=0).shape == (H, W, 3)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        DigitRenderer(background)
+        DigitRenderer.from_default_config(background)
+
+
+def test_every_setting_comes_from_the_render_config(background):
+    cfg = compose_config().render
+    assert DigitRenderer.from_config(cfg, background).settings == DigitRenderer.from_default_config(background).settings
+    assert DigitRenderer.from_config(cfg, background).light_intensity == cfg.light_intensity
+    partial = {k: v for k, v in cfg.items() if k != "light_intensity"}
+    with pytest.raises(ConfigError, match=r"render config lacks keys \['light_intensity'\]"):
+        DigitRenderer.from_config(partial, background)
+    with pytest.raises(TypeError):
+        DigitRenderer(background)  # no defaults in code: conf/render is their one home
 
 
 def test_gel_surface_is_a_cap_that_sags_toward_the_image_corners():

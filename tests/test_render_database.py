@@ -140,8 +140,8 @@ def test_body_contact_flag_marks_what_strict_mode_refuses():
     assert flags.tolist() == [False, True]
     background = np.full((H, W, 3), 100, np.uint8)
     with pytest.raises(InputError):
-        DigitRenderer(background, strict=True).render(dense, np.eye(4), deep[0])
-    assert DigitRenderer(background, strict=False).render(dense, np.eye(4), deep[0]).mask.any()
+        DigitRenderer.from_default_config(background, strict=True).render(dense, np.eye(4), deep[0])
+    assert DigitRenderer.from_default_config(background, strict=False).render(dense, np.eye(4), deep[0]).mask.any()
 
 
 def test_bench_render_prints_json_last(data_dir, capsys):

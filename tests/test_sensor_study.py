@@ -85,19 +85,3 @@ def test_ablation_reports_every_variant_and_sensor_count(artifacts, data_dir, mo
     assert results["normals"]["L3"]["pos_err_cm_top1"] < 0.5
 
 
-def test_ablation_variant_overrides_only_the_estimator_sections():
-    cfg = compose_config()
-    merged = ablation.variant_config(cfg, "x", cfg.ablation.variants["paper"])
-    assert merged.select.delta_d_rule == "paper" and merged.optimize.solver == "gd"  # the variant's own
-    fast = ablation.variant_config(cfg, "x", cfg.ablation.variants["+best_n"])
-    assert fast.optimize.solver == cfg.ablation.solver
-    with pytest.raises(ConfigError, match="may override only"):
-        ablation.variant_config(cfg, "x", OmegaConf.create({"render": {"width": 1}}))
-
-
-@pytest.mark.slow
-def test_the_ablation_paper_variant_is_the_paper_preset():
-    paper = compose_config(["preset=paper"])
-    variant = ablation.variant_config(compose_config(), "paper", compose_config().ablation.variants["paper"])
-    for section in ("select", "optimize", "rank"):
-        assert dict(variant[section]) == dict(paper[section]), section
