@@ -3,8 +3,8 @@
 The geometry is the simulator's (``tactile6d.render``): one ray per ``step`` x ``step`` pixel block from
 the DIGIT camera, the object's camera-facing triangles in front of the gel, the first hit of each ray
 (Embree), and the press depth ``gel distance - hit distance`` along the camera axis (sensor +x): the
-``depth`` of the renderer's ``contact`` itself, with ``render_step=step``, ``strict=False`` and no force
-shift, as the scenes use.
+renderer's own (``contact_depth``, the depth of ``contact`` without its shading), with
+``render_step=step``, ``strict=False`` and no force shift, as the scenes use.
 
 The image-consistent contact metric compares the contact masks (``depth > 0``) predicted at an estimated
 pose and at the true pose, sensor by sensor, by their intersection over union.
@@ -56,7 +56,7 @@ def poses_to_gel_depths(
     for p, T_wo in enumerate(T_objects):
         for i, T_sw in enumerate(T_sensors_world):
             # Composed one pair at a time, as DigitRenderer.render does, so the result is bit-identical.
-            out[p, i] = renderer.contact(arrays, T_sw @ T_wo)[1]
+            out[p, i] = renderer.contact_depth(arrays, T_sw @ T_wo)
     return out
 
 

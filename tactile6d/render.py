@@ -443,15 +443,46 @@ class DigitRenderer:
         contact (before scaling and blur); depth (h, w) float32 metres. (h, w) = image size / render_step.
         """
         arrays = mesh_arrays(mesh)
+        h, w = self.grid_shape
+        diff = np.zeros((3, h * w), dtype=np.float32)
+        depth = np.zeros(h * w, dtype=np.float32)
+        hits = self._gel_hits(arrays, T_sensor_object)
+        if hits is not None:
+            T, faces, pixels, t, prim, bu, bv = hits
+            point = np.stack([t, t * self._u[pixels], CAMERA_POSITION[2] + t * self._v[pixels]])  # (3, m)
+            # Smooth shading: barycentric blend of the corner normals in the object frame, then rotate.
+            corners = arrays.faces[faces[prim]]  # (m, 3) vertex indices
+            vn = arrays.vertex_normals_rows
+            normal = (1.0 - bu - bv) * vn[:, corners[:, 0]] + bu * vn[:, corners[:, 1]] + bv * vn[:, corners[:, 2]]
+            normal = _transform_rows(T[:3, :3].astype(np.float32), None, normal)
+            normal *= 1.0 / np.sqrt(_dot3(normal, normal))
+            diff[:, pixels] = to_8bit(shade(point, normal, self.light_intensity)) - self._gel_color[:, pixels]
+            depth[pixels] = self._gel_t[pixels] - t
+        return np.ascontiguousarray(diff.T).reshape(h, w, 3), depth.reshape(h, w)
+
+    def contact_depth(self, mesh: trimesh.Trimesh | MeshArrays, T_sensor_object: np.ndarray) -> np.ndarray:
+        """The press depth of ``contact`` alone, (h, w) float32 metres, without shading: for callers that
+        need only where and how deep the object presses (render-and-compare). Bit-identical to it."""
+        arrays = mesh_arrays(mesh)
+        depth = np.zeros(self.grid_shape[0] * self.grid_shape[1], dtype=np.float32)
+        hits = self._gel_hits(arrays, T_sensor_object)
+        if hits is not None:
+            pixels, t = hits[2], hits[3]
+            depth[pixels] = self._gel_t[pixels] - t
+        return depth.reshape(self.grid_shape)
+
+    def _gel_hits(self, arrays: MeshArrays, T_sensor_object: np.ndarray):
+        """Where the camera's rays hit the object in front of the gel -> None (no press) or (T, faces,
+        pixels, t, prim, bu, bv): the pose used (with TACTO's force shift), the front faces, and per pressed
+        ray its pixel index, hit distance, face (into ``faces``) and barycentric weights of corners 1 and 2.
+
+        Raises InputError (when ``strict``) for an object inside the sensor body.
+        """
         T = np.asarray(T_sensor_object, dtype=np.float64)
         if self.shift > 0.0:
             # TACTO moves the object along the line from its origin to the camera.
             direction = CAMERA_POSITION - T[:3, 3]
             T = make_pose(T[:3, :3], T[:3, 3] + self.shift * direction / (np.linalg.norm(direction) + 1e-6))
-        h, w = self.grid_shape
-        diff = np.zeros((3, h * w), dtype=np.float32)
-        depth = np.zeros(h * w, dtype=np.float32)
-        nothing = (np.ascontiguousarray(diff.T).reshape(h, w, 3), depth.reshape(h, w))
         vertices = _transform_rows(T[:3, :3], T[:3, 3], arrays.vertex_rows).T  # (V, 3) view
         if self.strict:
             inside = inside_body(vertices)
@@ -463,33 +494,24 @@ class DigitRenderer:
                 )
         faces = _front_triangles(vertices, arrays.faces, sensor.GEL_CENTER[0], self._half_y, self._half_z)
         if len(faces) == 0:
-            return nothing
+            return None
         triangles = vertices[arrays.faces[faces]]
         r0, r1, c0, c1 = self._pixel_window(triangles)
         if r0 >= r1 or c0 >= c1:
-            return nothing
+            return None
         pixels = self._pixel_index[r0:r1, c0:c1].ravel()
         t, prim, bu, bv = self._caster.first_hits(triangles, self._rays[r0:r1, c0:c1].reshape(-1, 3))
         hit = np.nonzero((prim >= 0) & (t < self._gel_t[pixels]))[0]
         if len(hit) == 0:
-            return nothing
-        pixels, t, prim, bu, bv = pixels[hit], t[hit], prim[hit], bu[hit], bv[hit]
+            return None
+        pixels, t = pixels[hit], t[hit]
         press = self._gel_t[pixels] - t
         if self.strict and press.max() > self.max_press:
             raise InputError(
                 f"the object presses {press.max() * 1000:.1f} mm into the gel, more than its "
                 f"{self.max_press * 1000:.1f} mm: it would be inside the DIGIT body"
             )
-        point = np.stack([t, t * self._u[pixels], CAMERA_POSITION[2] + t * self._v[pixels]])  # (3, m)
-        # Smooth shading: barycentric blend of the corner normals in the object frame, then rotate.
-        corners = arrays.faces[faces[prim]]  # (m, 3) vertex indices
-        vn = arrays.vertex_normals_rows
-        normal = (1.0 - bu - bv) * vn[:, corners[:, 0]] + bu * vn[:, corners[:, 1]] + bv * vn[:, corners[:, 2]]
-        normal = _transform_rows(T[:3, :3].astype(np.float32), None, normal)
-        normal *= 1.0 / np.sqrt(_dot3(normal, normal))
-        diff[:, pixels] = to_8bit(shade(point, normal, self.light_intensity)) - self._gel_color[:, pixels]
-        depth[pixels] = press
-        return np.ascontiguousarray(diff.T).reshape(h, w, 3), depth.reshape(h, w)
+        return T, faces, pixels, t, prim[hit], bu[hit], bv[hit]
 
     def _pixel_window(self, triangles: np.ndarray) -> tuple[int, int, int, int]:
         """Row and column range (of the ray grid) that the triangles (k, 3, 3) can cover: r0, r1, c0, c1."""

@@ -172,6 +172,23 @@ def test_lenient_renderer_renders_an_object_inside_the_body(background, cube):
     assert result.mask.mean() > 0.9
 
 
+def test_contact_depth_is_contact_without_the_shading(background, sphere, cube):
+    rng = np.random.default_rng(4)
+    for force in (0.0, 30.0):
+        lenient = DigitRenderer.from_default_config(background, strict=False, force=force)
+        for mesh in (sphere, cube):
+            points, face = mesh.sample(6, return_index=True)
+            poses = touching(points, mesh.face_normals[face], rng.uniform(-np.pi, np.pi, 6), rng.uniform(0.0, 0.004, 6))
+            poses[0, :3, 3] -= 0.02 * poses[0, :3, 0]  # pulled away: no press at all
+            depths = [lenient.contact_depth(mesh, g.invert_pose(T)) for T in poses]
+            for T, depth in zip(poses, depths):
+                np.testing.assert_array_equal(depth, lenient.contact(mesh, g.invert_pose(T))[1])
+            assert not depths[0].any() and all(d.any() for d in depths[1:])
+    with pytest.raises(InputError, match="inside the DIGIT body"):
+        DigitRenderer.from_default_config(background).contact_depth(
+            cube, g.invert_pose(touching([0.02, 0, 0], [1, 0, 0], depth=0.012)))
+
+
 def test_degenerate_meshes_are_mesh_errors(renderer):
     empty = trimesh.Trimesh(vertices=np.zeros((3, 3)), faces=np.zeros((0, 3), dtype=int), process=False)
     flat = trimesh.Trimesh(vertices=np.zeros((3, 3)), faces=[[0, 1, 2]], process=False)
