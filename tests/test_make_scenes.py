@@ -8,19 +8,23 @@ from tactile6d import contact, layout
 from tactile6d.io import read_artifact
 from tactile6d.scenes import CADDEO2023_T_WORLD_OBJECT
 
+pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
+
+
+def prepare(root: str, obj: str) -> None:
+    assert prepare_object.main(["--object", obj, f"paths.artifacts_dir={root}", "prepare.collision=hull"]) == 0
+    assert sample_surface.main(["--object", obj, f"paths.artifacts_dir={root}", "sample.M=200"]) == 0
+
 
 @pytest.fixture(scope="module")
 def artifacts(tmp_path_factory, data_dir):
     root = str(tmp_path_factory.mktemp("artifacts"))
-    for obj in ("prim_box", "004_sugar_box"):
-        common = [f"paths.artifacts_dir={root}", "prepare.collision=hull"]
-        assert prepare_object.main(["--object", obj, *common]) == 0
-        assert sample_surface.main(["--object", obj, f"paths.artifacts_dir={root}", "sample.M=200"]) == 0
+    prepare(root, "prim_box")
     return root
 
 
-@pytest.mark.slow
 def test_caddeo2023_import(artifacts):
+    prepare(artifacts, "004_sugar_box")  # a YCB mesh: the slow part
     args = ["--scene-set", "caddeo2023", f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box,004_sugar_box]"]
     assert make_scenes.main(args) == 0
     art = read_artifact(layout.scenes_file(artifacts, "caddeo2023"), "scenes")

@@ -7,6 +7,7 @@ one made once per module (the default is larger and more accurate).
 import cv2
 import numpy as np
 import pytest
+from test_estimator import small_patch_model
 
 from tactile6d import patch, sensor
 from tactile6d import superquadrics as sq
@@ -22,7 +23,7 @@ OFFSET = 0.004
 
 @pytest.fixture(scope="module")
 def model():
-    return patch.calibrate(20, seed=0)
+    return small_patch_model()
 
 
 def smooth_background() -> np.ndarray:

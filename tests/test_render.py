@@ -146,6 +146,7 @@ def test_render_many_matches_render(renderer, cube):
         np.testing.assert_array_equal(masks[i], single.mask)
 
 
+@pytest.mark.slow  # starts two processes
 def test_render_many_with_two_worker_processes(background, cube):
     T = touching(np.tile([0.02, 0.0, 0.0], (16, 1)), np.tile([1.0, 0, 0], (16, 1)), np.linspace(0, 3, 16))
     with DigitRenderer.from_default_config(background, workers=2) as parallel:
