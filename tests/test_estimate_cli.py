@@ -86,7 +86,6 @@ def test_json_has_the_top_k_poses_scores_and_timings(capsys, artifacts, scene):
     assert result["losses"][0] < 0.003
 
 
-@pytest.mark.slow
 def test_ours_runs_with_a_checkpoint_and_the_data_background(capsys, artifacts, scene, data_dir, monkeypatch):
     from test_estimator import write_tiny_autoencoder
 
