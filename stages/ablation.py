@@ -28,6 +28,7 @@ from tactile6d.optimize import use_cpu_devices
 from tactile6d.sensor_subsets import evaluate_sensor_count
 from tactile6d.variants import estimator_settings_key, variant_config
 
+
 def evaluate_variant(cfg_container: dict, scene_set: str, name: str, progress: bool) -> dict[str, dict[str, float]]:
     """One variant: ``L1``, ``L2``, ... -> summary with ``time_s_median``. Reads its own inputs, so that
     it can run in a fresh worker process."""

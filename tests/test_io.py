@@ -3,7 +3,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-
 from pathlib import Path
 
 import h5py
