@@ -23,6 +23,7 @@ sampled on the mesh's flat triangles exactly onto the surface.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -47,7 +48,7 @@ _MIN_BEND_RADIUS = 0.0002
 # budget (a shape far larger than max_edge, or a degenerate one) would ask for more memory than the
 # machine has; at this cap a mesh has at most ~4M vertices. The training and calibration shapes stay far
 # below it (their curves need at most a few hundred points), so it only turns an out-of-memory crash
-# into a coarser mesh.
+# into a coarser mesh, with a warning.
 _MAX_CURVE_SAMPLES = 2048
 
 # Contact kinds, by how many directions the surface bends sharply in.
@@ -146,7 +147,7 @@ def superellipse_samples(
     most ``max_edge`` apart (metres, on the scaled curve) and their normals at most ``max_turn`` apart
     (radians), approximately: both budgets are spread evenly along the curve. Bends sharper than
     ``_MIN_BEND_RADIUS`` get only that radius's share of the turning budget. At most
-    ``_MAX_CURVE_SAMPLES`` points: beyond that the budgets are exceeded, evenly.
+    ``_MAX_CURVE_SAMPLES`` points: beyond that the budgets are exceeded, evenly, with a warning.
     """
     lo, hi = (-np.pi, np.pi) if closed else (-np.pi / 2, np.pi / 2)
     phi = np.linspace(lo, hi, _FINE_SAMPLES)
@@ -157,7 +158,12 @@ def superellipse_samples(
     turn = np.minimum(np.abs(np.diff(normal_angle)), ds / _MIN_BEND_RADIUS)
     step = ds / max_edge + turn / max_turn
     cost = np.concatenate([[0.0], np.cumsum(step)])
-    n_seg = min(max(16 if closed else 8, int(np.ceil(cost[-1]))), _MAX_CURVE_SAMPLES)
+    n_seg = max(16 if closed else 8, int(np.ceil(cost[-1])))
+    if n_seg > _MAX_CURVE_SAMPLES:
+        warnings.warn(f"the superellipse (e={e:.3g}, semi-axes {p:.3g} x {q:.3g} m) needs {n_seg} points for edges of "
+                      f"{max_edge:.3g} m and turns of {max_turn:.3g} rad; meshed with {_MAX_CURVE_SAMPLES}, coarser",
+                      stacklevel=2)
+        n_seg = _MAX_CURVE_SAMPLES
     targets = np.linspace(0.0, cost[-1], n_seg + 1)
     if closed:
         targets = targets[:-1]

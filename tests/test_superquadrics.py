@@ -117,7 +117,8 @@ def test_shapes_narrower_than_the_gel_give_tips_and_rods():
 
 def test_a_superellipse_far_larger_than_the_edge_budget_gets_the_capped_number_of_points():
     for closed in (True, False):
-        u, v = sq.superellipse_samples(0.2, 1.0, 1.0, closed, 0.001, 0.05)
+        with pytest.warns(UserWarning, match=f"needs \\d+ points .* meshed with {sq._MAX_CURVE_SAMPLES}, coarser"):
+            u, v = sq.superellipse_samples(0.2, 1.0, 1.0, closed, 0.001, 0.05)
         assert len(u) == sq._MAX_CURVE_SAMPLES + (0 if closed else 1)
         np.testing.assert_allclose(np.abs(u) ** 10 + np.abs(v) ** 10, 1.0, atol=1e-9)  # still on the curve
 
@@ -126,7 +127,8 @@ def test_a_superellipse_far_larger_than_the_edge_budget_gets_the_capped_number_o
 def test_a_shape_far_larger_than_the_edge_budget_meshes_coarser_not_out_of_memory():
     # A 2 m box at 1 mm edges would need ~8000 points per superellipse, 64M vertices: capped instead.
     huge = sq.Superquadric(1.0, 1.0, 1.0, 0.2, 0.2)
-    mesh = sq.superquadric_mesh(huge, 0.001, 0.05)
+    with pytest.warns(UserWarning, match="coarser"):
+        mesh = sq.superquadric_mesh(huge, 0.001, 0.05)
     n_rings, n_around = sq.grid_shape(mesh)
     assert n_around == sq._MAX_CURVE_SAMPLES and n_rings == sq._MAX_CURVE_SAMPLES - 1
     assert mesh.is_watertight and mesh.is_winding_consistent
