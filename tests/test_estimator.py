@@ -68,7 +68,7 @@ def settings(**overrides):
 @functools.cache
 def small_patch_model() -> patch.PatchModel:
     """A small contact-patch calibration (20 presses; the pipeline's has 60), made once per test process."""
-    return patch.calibrate(20, seed=0, renderer=patch.calibration_renderer(workers=1))
+    return patch.calibrate(20, seed=0)
 
 
 def make_estimator(world, angles=None, **overrides):
