@@ -170,7 +170,10 @@ def object_to_box_poses(T_world_object: np.ndarray, T_world_sensor: np.ndarray) 
 
 def _near_pieces(pieces: ConvexPieces, relative: np.ndarray) -> np.ndarray:
     """relative (P, L, 4, 4) T_box_object -> (P, L, K) bool: piece k's bounding sphere meets the box."""
-    centers = np.einsum("plab,kb->plka", relative[..., :3, :3], pieces.centers) + relative[..., None, :3, 3]
+    R = relative[..., :3, :3]
+    # One matrix multiply for all poses and pieces (an einsum here took 3 times as long with 32 pieces).
+    centers = (R.reshape(-1, 3) @ pieces.centers.T).reshape(*R.shape[:-1], -1).swapaxes(-1, -2)
+    centers = centers + relative[..., None, :3, 3]
     return box_point_distance(centers, BOX_HALF_EXTENTS) < pieces.radii
 
 
@@ -221,22 +224,29 @@ def poses_to_box_depth_bounds(pieces: ConvexPieces, T_world_object: np.ndarray, 
     return bounds
 
 
-def poses_to_penetrations(model: PenetrationModel, T_world_object: np.ndarray, T_world_sensor: np.ndarray) -> np.ndarray:
-    """Penetration depth of the object at each pose into each sensor's box.
-
-    model: PenetrationModel of the object's pieces; T_world_object (P, 4, 4); T_world_sensor (L, 4, 4)
-    -> (P, L) metres: the largest over pieces of fcl's depth, raised to the two lower bounds
-    (``poses_to_vertex_depth_bounds``, ``poses_to_box_depth_bounds``) where EPA stops short of them;
-    0 where apart.
+def poses_to_fcl_depths(model: PenetrationModel, T_world_object: np.ndarray, T_world_sensor: np.ndarray) -> np.ndarray:
+    """fcl's penetration depths alone: (P, 4, 4), (L, 4, 4) -> (P, L) metres, the largest over pieces; 0
+    where apart. EPA can stop short on some contacts: ``poses_to_penetrations`` raises these to the
+    lower bounds, and so does ``ranking.rank_poses`` with the bounds it has already computed.
     """
     relative = object_to_box_poses(T_world_object, T_world_sensor)
     near = _near_pieces(model.pieces, relative)
     depths = np.zeros(near.shape)
     for p, i, k in zip(*np.nonzero(near)):
         depths[p, i, k] = model.depth(k, relative[p, i])
-    exact = depths.max(axis=2) if depths.shape[2] else np.zeros(near.shape[:2])
+    return depths.max(axis=2) if depths.shape[2] else np.zeros(near.shape[:2])
+
+
+def poses_to_penetrations(model: PenetrationModel, T_world_object: np.ndarray, T_world_sensor: np.ndarray) -> np.ndarray:
+    """Penetration depth of the object at each pose into each sensor's box.
+
+    model: PenetrationModel of the object's pieces; T_world_object (P, 4, 4); T_world_sensor (L, 4, 4)
+    -> (P, L) metres: fcl's depth (``poses_to_fcl_depths``), raised to the two lower bounds
+    (``poses_to_vertex_depth_bounds``, ``poses_to_box_depth_bounds``) where EPA stops short of them;
+    0 where apart.
+    """
     bounds = np.maximum(
         poses_to_vertex_depth_bounds(model.pieces, T_world_object, T_world_sensor),
         poses_to_box_depth_bounds(model.pieces, T_world_object, T_world_sensor),
     )
-    return np.maximum(exact, bounds)
+    return np.maximum(poses_to_fcl_depths(model, T_world_object, T_world_sensor), bounds)

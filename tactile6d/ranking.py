@@ -12,8 +12,9 @@ bound function applied, one with the first bound gets the second, and so on; one
 gets its exact depths. This stops as soon as no unscored pose's bound is below the k-th best distinct
 score so far: no unscored pose can then beat it, nor (coming later in score order) hide one of the top
 k as its duplicate. The result is the same as scoring every pose (``rank_poses_brute_force``, checked
-in the tests), provided the depth function returns at least each bound (``collision``'s does). Ties
-in score are broken by input position.
+in the tests), provided every bound is a true lower bound. A pose's depths are the depth function's,
+raised to the bounds already computed for it (so the function may leave the bounds out, as
+``collision.poses_to_fcl_depths`` does). Ties in score are broken by input position.
 """
 
 from __future__ import annotations
@@ -46,18 +47,30 @@ class RankedPoses:
 def distinct_in_order(poses: np.ndarray, order: np.ndarray, tol_translation: float, tol_rotation: float, limit: int) -> list[int]:
     """Greedy de-duplication: walk ``order`` (indices into poses (P, 4, 4)) and keep a pose unless it
     is within tol_translation (m) and tol_rotation (rad) of one already kept; stop at ``limit`` kept.
-    Returns the kept indices, in walking order."""
+    Returns the kept indices, in walking order.
+
+    Vectorised over the walk: each pose kept strikes out at once every later pose that duplicates it, so
+    the cost is one array operation per kept pose, not one per pose walked (the optimiser's hypotheses
+    come in tight clusters, so most poses walked are duplicates). Same decisions, bit for bit, as the
+    pose-by-pose walk (``tests/test_collision.py``'s reference).
+    """
+    order = np.asarray(order, dtype=np.int64).reshape(-1)
+    translations = poses[order, :3, 3]
+    rotations = poses[order, :3, :3]
+    free = np.ones(len(order), dtype=bool)  # not a duplicate of a pose kept so far
     kept: list[int] = []
-    for j in order:
-        if kept:
-            near_t = np.linalg.norm(poses[kept, :3, 3] - poses[j, :3, 3], axis=1) <= tol_translation
-            if np.any(near_t):
-                candidates = np.asarray(kept)[near_t]
-                if np.any(rotation_angle(poses[candidates, :3, :3], poses[j, :3, :3]) <= tol_rotation):
-                    continue
-        kept.append(int(j))
-        if len(kept) == limit:
+    start = 0
+    while len(kept) < limit:
+        ahead = np.flatnonzero(free[start:])
+        if ahead.size == 0:
             break
+        at = start + int(ahead[0])
+        kept.append(int(order[at]))
+        start = at + 1
+        later = start + ahead[1:] - ahead[0] - 1  # the free positions after this one
+        near_t = later[np.linalg.norm(translations[at] - translations[later], axis=1) <= tol_translation]
+        if near_t.size:
+            free[near_t[rotation_angle(rotations[at], rotations[near_t]) <= tol_rotation]] = False
     return kept
 
 
@@ -74,9 +87,9 @@ def rank_poses(
     """The top_k distinct poses by R = E + max_i d_i, scoring only the poses that can make it.
 
     poses (P, 4, 4), losses (P,) m, penetrations: a function (B, 4, 4) -> (B, L) depths in metres
-    (e.g. ``functools.partial(collision.poses_to_penetrations, model, T_world_sensor=...)``), top_k,
-    tol_translation m, tol_rotation rad, depth_bounds: functions (B, 4, 4) -> (B, L) lower bounds on
-    the depths, cheapest first; batch: poses handled per step.
+    (e.g. ``functools.partial(collision.poses_to_fcl_depths, model, T_world_sensor=...)``), which are
+    raised to the pose's bounds; top_k, tol_translation m, tol_rotation rad, depth_bounds: functions
+    (B, 4, 4) -> (B, L) lower bounds on the depths, cheapest first; batch: poses handled per step.
     """
     poses = np.asarray(poses, dtype=np.float64)
     losses = np.asarray(losses, dtype=np.float64)
@@ -87,6 +100,7 @@ def rank_poses(
     n_levels = len(depth_bounds)
     key = losses.copy()  # lower bound on each pose's score
     level = np.zeros(len(losses), dtype=np.int64)  # bounds applied so far; n_levels + 1 = scored
+    lower = None  # (P, L) the largest depth bound computed so far for each pose and sensor
     scored = np.zeros(0, dtype=np.int64)
     depth_rows, scores = [], np.zeros(0)
     kept: list[int] = []
@@ -103,12 +117,17 @@ def rank_poses(
         for lvl in range(n_levels):
             chunk = open_[at == lvl]
             if chunk.size:
-                bound = np.asarray(depth_bounds[lvl](poses[chunk]), dtype=np.float64).max(axis=1)
-                key[chunk] = np.maximum(key[chunk], losses[chunk] + bound)
+                bound = np.asarray(depth_bounds[lvl](poses[chunk]), dtype=np.float64)
+                if lower is None:
+                    lower = np.zeros((len(poses), bound.shape[1]))
+                lower[chunk] = np.maximum(lower[chunk], bound)
+                key[chunk] = np.maximum(key[chunk], losses[chunk] + bound.max(axis=1))
                 level[chunk] = lvl + 1
         chunk = open_[at == n_levels]
         if chunk.size:
             depths = np.asarray(penetrations(poses[chunk]), dtype=np.float64)
+            if lower is not None:
+                depths = np.maximum(depths, lower[chunk])
             level[chunk] = n_levels + 1
             depth_rows.append(depths)
             scored = np.concatenate([scored, chunk])

@@ -177,6 +177,12 @@ def test_lazy_ranking_equals_scoring_everything():
         assert np.all(np.diff(lazy.scores) >= 0) and len(lazy.index) == top_k
         n_scored.append(lazy.n_scored)
     assert n_scored[0] < n and n_scored[1] < n and n_scored[3] < n
+    # fcl's depths alone, raised by rank_poses to the bounds it computed, as the rank step scores them.
+    fcl_only = functools.partial(col.poses_to_fcl_depths, model, T_world_sensor=T_sensors)
+    lazy = rk.rank_poses(poses, losses, fcl_only, 5, 0.005, 0.1, depth_bounds=bounds, batch=16)
+    full = rk.rank_poses_brute_force(poses, losses, score, 5, 0.005, 0.1)
+    np.testing.assert_array_equal(lazy.index, full.index)
+    np.testing.assert_array_equal(lazy.penetrations, full.penetrations)
 
 
 def test_near_duplicates_collapse():
@@ -186,6 +192,40 @@ def test_near_duplicates_collapse():
     assert kept == [0, 2]
     assert rk.distinct_in_order(poses, np.arange(3), 0.001, np.radians(5), 5) == [0, 1, 2]
     assert rk.distinct_in_order(poses, np.array([2, 1, 0]), 0.005, np.radians(5), 1) == [2]
+
+
+def distinct_in_order_reference(poses, order, tol_translation, tol_rotation, limit):
+    """The greedy de-duplication pose by pose: the definition ``ranking.distinct_in_order`` vectorises."""
+    kept = []
+    for j in order:
+        if kept:
+            near_t = np.linalg.norm(poses[kept, :3, 3] - poses[j, :3, 3], axis=1) <= tol_translation
+            if np.any(near_t):
+                candidates = np.asarray(kept)[near_t]
+                if np.any(g.rotation_angle(poses[candidates, :3, :3], poses[j, :3, :3]) <= tol_rotation):
+                    continue
+        kept.append(int(j))
+        if len(kept) == limit:
+            break
+    return kept
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_distinct_in_order_matches_the_pose_by_pose_walk(seed):
+    # Tight clusters around a few poses, as the optimiser's hypotheses come, with some spread far enough
+    # to be distinct in translation only, in rotation only, or in both.
+    rng = np.random.default_rng(seed)
+    centres = [g.make_pose(g.rotvec_to_rotmat(rng.normal(size=3)), rng.normal(scale=0.02, size=3)) for _ in range(6)]
+    poses = np.stack([
+        centres[rng.integers(6)] @ g.make_pose(g.rotvec_to_rotmat(rng.normal(scale=0.06, size=3)),
+                                               rng.normal(scale=0.004, size=3))
+        for _ in range(400)
+    ])
+    order = rng.permutation(len(poses))[: 350 if seed % 2 else 400]
+    for limit in (1, 5, 30, 400):
+        expected = distinct_in_order_reference(poses, order, 0.005, np.radians(5), limit)
+        assert rk.distinct_in_order(poses, order, 0.005, np.radians(5), limit) == expected
+    assert 5 < len(expected) < len(order)  # the clusters make the walk skip many, and keep several
 
 
 def test_ranking_rejects_bad_input():

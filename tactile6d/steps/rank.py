@@ -62,7 +62,7 @@ def rank(
     first = ranking.rank_poses(
         poses,
         losses,
-        partial(collision.poses_to_penetrations, model, T_world_sensor=T_world_sensors),
+        partial(collision.poses_to_fcl_depths, model, T_world_sensor=T_world_sensors),
         top_k=int(settings.candidates if settings.refine or compare else settings.top_k),
         tol_translation=float(settings.dedup_translation),
         tol_rotation=float(np.radians(settings.dedup_rotation)),
