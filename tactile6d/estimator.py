@@ -213,7 +213,8 @@ class Estimator:
         T = check_sensor_poses(T_world_sensors)
         if self.settings.select.reads_patches:
             images = check_images(images, T.shape[0])
-        return encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model)
+        return encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model,
+                                         self.settings.threads)
 
     def select(self, contacts: Contacts, angles: np.ndarray | None = None) -> Selection:
         """Candidate tuples for the sensors' contacts (``contacts``), given the images' angles (L,)."""
@@ -221,7 +222,8 @@ class Estimator:
 
     def optimize(self, contacts: Contacts, tuples: np.ndarray) -> optimization.PoseHypotheses:
         """Pose hypotheses for tuples (T, L) of database indices."""
-        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals)
+        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals,
+                                      self.settings.threads)
 
     def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray,
              contacts: Contacts | None = None) -> ranking.RankedPoses:
@@ -230,7 +232,7 @@ class Estimator:
         contacts: as ``contacts`` returned (default: the sensors' landmarks)."""
         poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
         return rank_step.rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses,
-                              self.settings.rank, self.surface, contacts, self.mesh)
+                              self.settings.rank, self.surface, contacts, self.mesh, self.settings.threads)
 
     def estimate(self, T_world_sensors, images=None) -> Estimate:
         """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.
