@@ -1,10 +1,9 @@
 """Stage optimize: pose hypotheses for every scene's tuples (the paper's optimisation step).
 
 Reads ``artifacts/runs/<set>/<method>/tuples.h5`` (tuples and the sensors' contacts), each scene object's
-``surfaces/<obj>.h5``, and config section ``optimize`` (with ``runtime.threads``, which changes no result).
-Writes ``hypotheses.h5`` beside it: per scene the hypotheses stacked with offsets, each stored compactly as
-float32 translation (m) and rotation vector (rad), its loss (m, float32) and the index of its tuple within the
-scene; plus the seconds spent optimising each scene.
+``surfaces/<obj>.h5``, and config section ``optimize``. Writes ``hypotheses.h5`` beside it: per scene the hypotheses stacked with offsets,
+each stored compactly as float32 translation (m) and rotation vector (rad), its loss (m, float32) and the
+index of its tuple within the scene; plus the seconds spent optimising each scene.
 """
 
 from __future__ import annotations
@@ -31,14 +30,13 @@ from tactile6d.run_artifacts import (
     stack_ragged,
 )
 from tactile6d.schemas import CONTACT_FIELDS, PATCH_FIELDS
-from tactile6d.settings import OptimizeSettings, threads_from_cfg
+from tactile6d.settings import OptimizeSettings
 from tactile6d.steps.optimize import optimize
 
 
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
     settings = OptimizeSettings.from_cfg(cfg.optimize)
-    threads = threads_from_cfg(cfg.runtime)
     if settings.solver == "gd":
         use_cpu_devices(settings.cpu_devices)  # before JAX runs anything in this process
     artifacts = cfg.paths.artifacts_dir
@@ -60,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         t0 = time.perf_counter()
         hypotheses = optimize(points_of[objects[s]], scene_contacts(selected, s), tuples, settings,
-                              normals_of[objects[s]], threads)
+                              normals_of[objects[s]])
         seconds[s] = time.perf_counter() - t0
         poses.append(hypotheses.poses)
         losses.append(hypotheses.losses)

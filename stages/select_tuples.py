@@ -1,12 +1,12 @@
 """Stage select_tuples: candidate tuples of database points for every scene of a scene set (tactile and distance selection; the baseline skips the tactile part).
 
-Reads ``artifacts/scenes/<set>.h5``, each scene object's ``surfaces/<obj>.h5`` and, for method ``ours``, its
-``latents/<obj>.h5``, the autoencoder checkpoint, the no-contact background (``render.background``) and, for
-``select.contacts=patch``, the patch calibration (``artifacts/patch/model.npz``); config section ``select``
-(with ``runtime.threads``, which changes no result). Writes ``artifacts/runs/<set>/<method>/tuples.h5``: per
-scene the tuples and their distance errors (stacked, with offsets), the selection diagnostics, the sensor
-poses and the sensors' contacts (so the later stages need not read the scenes again), seconds spent encoding
-and selecting, and why a scene failed ('' when it did not).
+Reads ``artifacts/scenes/<set>.h5``, each scene object's ``surfaces/<obj>.h5`` and, for method ``ours``,
+its ``latents/<obj>.h5``, the autoencoder checkpoint, the no-contact background (``render.background``)
+and, for ``select.contacts=patch``, the patch calibration (``artifacts/patch/model.npz``); config section
+``select``. Writes ``artifacts/runs/<set>/<method>/tuples.h5``: per scene the tuples and their distance
+errors (stacked, with offsets), the selection diagnostics, the sensor poses and the sensors' contacts
+(so the later stages need not read the scenes again), seconds spent encoding and selecting, and why a
+scene failed ('' when it did not).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from tactile6d.run_artifacts import (
     stack_ragged,
 )
 from tactile6d.scenes import scene_set_from_artifact
-from tactile6d.settings import SelectSettings, threads_from_cfg
+from tactile6d.settings import SelectSettings
 from tactile6d.steps.encode import (
     LatentAngleEncoder,
     load_background,
@@ -71,7 +71,6 @@ class Database:
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
     settings = SelectSettings.from_cfg(cfg.select)
-    threads = threads_from_cfg(cfg.runtime)
     artifacts = cfg.paths.artifacts_dir
     scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes"))
     n_scenes, n_sensors = scenes.T_world_sensors.shape[:2]
@@ -95,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         images = check_images(scenes.images[s], n_sensors) if encoder is not None else None
         if encoder is not None:
             angles[s] = encoder(images)
-        contacts.append(read_contacts(settings, T, images, no_contact, patch_model, threads))
+        contacts.append(read_contacts(settings, T, images, no_contact, patch_model))
         t1 = time.perf_counter()
         seconds[s, 0] = t1 - t0
         try:

@@ -213,8 +213,7 @@ class Estimator:
         T = check_sensor_poses(T_world_sensors)
         if self.settings.select.reads_patches:
             images = check_images(images, T.shape[0])
-        return encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model,
-                                         self.settings.threads)
+        return encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model)
 
     def select(self, contacts: Contacts, angles: np.ndarray | None = None) -> Selection:
         """Candidate tuples for the sensors' contacts (``contacts``), given the images' angles (L,)."""
@@ -222,8 +221,7 @@ class Estimator:
 
     def optimize(self, contacts: Contacts, tuples: np.ndarray) -> optimization.PoseHypotheses:
         """Pose hypotheses for tuples (T, L) of database indices."""
-        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals,
-                                      self.settings.threads)
+        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals)
 
     def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray,
              contacts: Contacts | None = None) -> ranking.RankedPoses:

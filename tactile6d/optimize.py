@@ -46,7 +46,6 @@ the answer gd ends in a limit cycle, in float32 and float64 alike.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,38 +103,18 @@ def _check(object_points: np.ndarray, sensor_points: np.ndarray):
 # --- fast solver ---------------------------------------------------------------------------------
 
 
-# Below this many matrices per thread, starting the threads costs more than it saves.
-_SVD_MIN_PER_THREAD = 500
-
-
-def svd_in_threads(matrices: np.ndarray, threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``np.linalg.svd`` of a batch (N, m, n), the batch split among ``threads`` threads -> (u, s, vt).
-
-    LAPACK factors the matrices one by one without holding Python's lock, so two threads on two cores
-    take about half the time, and each matrix's factors are the same as in one call (tests/test_optimize.py).
-    """
-    threads = max(1, min(int(threads), len(matrices) // _SVD_MIN_PER_THREAD))
-    if threads == 1:
-        return np.linalg.svd(matrices)
-    with ThreadPoolExecutor(threads) as pool:  # short-lived: a kept pool would not survive a fork
-        parts = list(pool.map(np.linalg.svd, np.array_split(matrices, threads)))
-    return tuple(np.concatenate(factor) for factor in zip(*parts))
-
-
 def weighted_kabsch(
     object_points: np.ndarray,
     sensor_points: np.ndarray,
     weights: np.ndarray,
     directions: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-    threads: int = 1,
 ) -> np.ndarray:
     """The pose minimising sum_i w_i ||s_i - (R p_i + t)||^2 (+ sum_i v_i ||m_i - R n_i||^2).
 
     object_points (N, L, 3), sensor_points (L, 3) or (N, L, 3), weights (N, L) >= 0 -> (N, 4, 4).
     directions: optional (n (N, L, 3) object-frame unit vectors, m (L, 3) or (N, L, 3) world unit
     vectors, v (N, L) >= 0 weights), which only enter the rotation. Without them L >= 3
-    non-collinear points; a reflection in the SVD solution is turned into a rotation. threads: for the
-    SVDs (``svd_in_threads``; the result does not depend on it).
+    non-collinear points; a reflection in the SVD solution is turned into a rotation.
     """
     total = weights.sum(axis=1, keepdims=True)
     w = weights / total
@@ -147,7 +126,7 @@ def weighted_kabsch(
         n_obj, m_world, v = directions
         m_world = np.broadcast_to(m_world, n_obj.shape)
         cov = cov + np.einsum("nl,nla,nlb->nab", v / total, m_world, n_obj)
-    u, _, vt = svd_in_threads(cov, threads)
+    u, _, vt = np.linalg.svd(cov)
     d = np.sign(np.linalg.det(u @ vt))
     d = np.where(d == 0, 1.0, d)
     R = u @ (np.concatenate([np.ones((len(d), 2)), d[:, None]], axis=1)[:, :, None] * vt)
@@ -191,7 +170,6 @@ def fit_fast(
     n_irls: int,
     normals: tuple[np.ndarray, np.ndarray] | None = None,
     normal_weight: float = 0.0,
-    threads: int = 1,
 ) -> PoseHypotheses:
     """The fast solver (module docstring), one pose per tuple.
 
@@ -199,26 +177,25 @@ def fit_fast(
     random rotations (used for L < 3 only, L = 1 with normals), n_irls IRLS steps (L >= 3, or L = 2
     with normals) -> PoseHypotheses with P = N. normals: (object normals (N, L, 3), sensor contact
     normals (L, 3)) and normal_weight lambda (m/rad) > 0 switch on the orientation-aware loss E_n.
-    threads: see ``weighted_kabsch``.
     """
     p, s = _check(object_points, sensor_points)
     n, n_sensors = p.shape[:2]
     rotations = np.asarray(rotations, dtype=np.float64)
     if normals is not None and normal_weight > 0:
-        return _fit_fast_normals(p, s, rotations, n_irls, normals, float(normal_weight), threads)
+        return _fit_fast_normals(p, s, rotations, n_irls, normals, float(normal_weight))
     if n_sensors == 1:
         poses = make_pose(rotations, s[0] - np.einsum("nab,nb->na", rotations, p[:, 0]))
     elif n_sensors == 2:
         poses = _align_two(p, s, rotations)
     else:
-        poses = weighted_kabsch(p, s, np.ones((n, n_sensors)), threads=threads)
+        poses = weighted_kabsch(p, s, np.ones((n, n_sensors)))
         for _ in range(n_irls):
             residual = np.linalg.norm(s[None] - (np.einsum("nab,nlb->nla", poses[:, :3, :3], p) + poses[:, None, :3, 3]), axis=-1)
-            poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, _IRLS_FLOOR), threads=threads)
+            poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, _IRLS_FLOOR))
     return PoseHypotheses(poses, poses_to_losses(poses, p, s), np.arange(n))
 
 
-def _fit_fast_normals(p, s, rotations, n_irls, normals, lam, threads) -> PoseHypotheses:
+def _fit_fast_normals(p, s, rotations, n_irls, normals, lam) -> PoseHypotheses:
     """fit_fast with the normal term (module docstring)."""
     n_obj = np.asarray(normals[0], dtype=np.float64)
     m = np.asarray(normals[1], dtype=np.float64)
@@ -230,13 +207,13 @@ def _fit_fast_normals(p, s, rotations, n_irls, normals, lam, threads) -> PoseHyp
         poses = make_pose(R, s[0] - np.einsum("nab,nb->na", R, p[:, 0]))
     else:
         ones = np.ones((n, n_sensors))
-        poses = weighted_kabsch(p, s, ones, (n_obj, m, lam * ones), threads)
+        poses = weighted_kabsch(p, s, ones, (n_obj, m, lam * ones))
         for _ in range(n_irls):
             residual = np.linalg.norm(s[None] - (np.einsum("nab,nlb->nla", poses[:, :3, :3], p) + poses[:, None, :3, 3]), axis=-1)
             turned = np.linalg.norm(m[None] - np.einsum("nab,nlb->nla", poses[:, :3, :3], n_obj), axis=-1)
             # The normal term's IRLS weight lambda / ||m - R n|| (a unitless residual, floored alike).
             poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, _IRLS_FLOOR),
-                                    (n_obj, m, lam / np.maximum(turned, _IRLS_FLOOR)), threads)
+                                    (n_obj, m, lam / np.maximum(turned, _IRLS_FLOOR)))
     losses = poses_to_losses(poses, p, s) + lam * normal_losses(poses, n_obj, m)
     return PoseHypotheses(poses, losses, np.arange(n))
 
@@ -386,7 +363,6 @@ def tuples_to_poses(
     normals: np.ndarray | None = None,
     sensor_normals: np.ndarray | None = None,
     normal_weight: float = 0.0,
-    threads: int = 1,
 ) -> PoseHypotheses:
     """Pose hypotheses for the selected tuples.
 
@@ -394,8 +370,7 @@ def tuples_to_poses(
     m), tuples (N, L) int indices into points, solver 'fast' or 'gd', rng draws one uniformly random
     rotation per tuple. gd uses n_steps, gain_t, gain_r, offset (m), the first n_translations (1-15)
     of ``initial_translations`` and precision; fast uses n_irls and, when normal_weight > 0, normals
-    (M, 3) the database normals and sensor_normals (L, 3) the sensors' contact normals (world), and
-    threads (``weighted_kabsch``).
+    (M, 3) the database normals and sensor_normals (L, 3) the sensors' contact normals (world).
     """
     tuples = np.asarray(tuples)
     if tuples.ndim != 2 or tuples.shape[0] == 0:
@@ -407,8 +382,8 @@ def tuples_to_poses(
             if normals is None or sensor_normals is None:
                 raise InputError("optimize.normal_weight > 0 needs the database and sensor normals")
             pair = (np.asarray(normals, dtype=np.float64)[tuples], np.asarray(sensor_normals, dtype=np.float64))
-            return fit_fast(object_points, sensor_points, rotations, n_irls, pair, normal_weight, threads)
-        return fit_fast(object_points, sensor_points, rotations, n_irls, threads=threads)
+            return fit_fast(object_points, sensor_points, rotations, n_irls, pair, normal_weight)
+        return fit_fast(object_points, sensor_points, rotations, n_irls)
     if solver == "gd":
         if not 1 <= n_translations <= len(TRANSLATION_DIRECTIONS):
             raise InputError(f"n_translations must be 1..{len(TRANSLATION_DIRECTIONS)}, got {n_translations}")

@@ -182,7 +182,7 @@ class RankSettings:
 @dataclass(frozen=True)
 class Settings:
     """All the estimator reads from the config: the select, optimize and rank sections, and
-    ``runtime.threads`` (conf/runtime/default.yaml: threads for the steps' independent parts; the
+    ``runtime.threads`` (conf/runtime/default.yaml: the threads of render-and-compare's ray casts; the
     results do not depend on it)."""
 
     select: SelectSettings

@@ -57,28 +57,6 @@ def test_fast_solver_recovers_a_random_pose_from_exact_correspondences(n_sensors
         assert fit.losses[0] < 1e-9
 
 
-def test_svd_in_threads_is_the_one_call_svd():
-    matrices = np.random.default_rng(2).normal(size=(2001, 3, 3))
-    expected = np.linalg.svd(matrices)
-    for threads in (1, 2, 3, 64):  # 64: more threads than the batch allows; they are capped
-        for got, want in zip(opt.svd_in_threads(matrices, threads), expected):
-            np.testing.assert_array_equal(got, want)
-    assert opt.svd_in_threads(matrices[:0], 2)[0].shape == (0, 3, 3)
-
-
-@pytest.mark.parametrize("normal_weight", [0.0, 0.01])
-def test_fast_solver_threads_change_nothing(normal_weight):
-    rng = np.random.default_rng(5)
-    n = 1500
-    p, s = rng.normal(scale=0.03, size=(n, 3, 3)), rng.normal(scale=0.03, size=(3, 3))
-    normals = (g.random_rotations(n, rng)[:, :, 0:3].transpose(0, 2, 1), np.eye(3))
-    R0 = g.random_rotations(n, rng)
-    one = opt.fit_fast(p, s, R0, 5, normals, normal_weight, threads=1)
-    two = opt.fit_fast(p, s, R0, 5, normals, normal_weight, threads=2)
-    np.testing.assert_array_equal(one.poses, two.poses)
-    np.testing.assert_array_equal(one.losses, two.losses)
-
-
 def test_weighted_kabsch_matches_brute_force_weighted_least_squares():
     rng = np.random.default_rng(1)
     p, s, _ = _scene(rng, 5, noise=0.003)

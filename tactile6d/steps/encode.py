@@ -11,7 +11,6 @@ contacts are the paper's landmarks, or each image's contact patch (``select.cont
 from __future__ import annotations
 
 from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -90,25 +89,15 @@ def read_contacts(
     images: np.ndarray | None = None,
     no_contact: np.ndarray | None = None,
     model: PatchModel | None = None,
-    threads: int = 1,
 ) -> Contacts:
     """The sensors' contacts for one estimate: their landmarks, or (``settings.reads_patches``) each
     image's contact patch.
 
     T_world_sensors (L, 4, 4); images (L, 320, 240, 3) uint8 RGB, no_contact (320, 240, 3) uint8 RGB
-    (the sensor's no-contact image) and model (the patch calibration) are needed for patches. threads
-    (``runtime.threads``): the images are read on up to this many threads (NumPy, SciPy and OpenCV
-    release Python's lock for most of the work; the result does not depend on it).
+    (the sensor's no-contact image) and model (the patch calibration) are needed for patches.
     """
     if not settings.reads_patches:
         return sensors_to_landmark_contacts(T_world_sensors)
     if images is None or no_contact is None or model is None:
         raise InputError("select.contacts=patch needs the images, the no-contact image and the patch calibration")
-    def read(image):
-        return image_to_patch(image, no_contact, model)
-
-    n_threads = max(1, min(int(threads), len(images)))
-    if n_threads == 1:
-        return patches_to_contacts([read(image) for image in images], T_world_sensors)
-    with ThreadPoolExecutor(n_threads) as pool:  # short-lived: a kept pool would not survive a fork
-        return patches_to_contacts(list(pool.map(read, images)), T_world_sensors)
+    return patches_to_contacts([image_to_patch(im, no_contact, model) for im in images], T_world_sensors)

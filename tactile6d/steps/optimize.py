@@ -20,13 +20,10 @@ def optimize(
     tuples: np.ndarray,
     settings: OptimizeSettings,
     normals: np.ndarray | None = None,
-    threads: int = 1,
 ) -> optimization.PoseHypotheses:
     """Pose hypotheses for the tuples: (P, 4, 4) poses, (P,) losses (m), tuple index.
 
-    contacts: the L sensors' contact points and normals (``tactile6d.contacts``); normals (M, 3): the
-    database normals, needed when ``optimize.normal_weight`` > 0; threads: ``runtime.threads`` (the fast
-    solver's SVDs; the result does not depend on it).
+    contacts: the L sensors' contact points and normals (``tactile6d.contacts``); normals (M, 3): the database normals, needed when ``optimize.normal_weight`` > 0.
     """
     return optimization.tuples_to_poses(
         points,
@@ -44,5 +41,4 @@ def optimize(
         normals=normals,
         sensor_normals=contacts.normals,
         normal_weight=settings.normal_weight_for(contacts.points.shape[0]),
-        threads=int(threads),
     )
