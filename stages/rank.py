@@ -1,10 +1,9 @@
 """Stage rank: the top-k distinct poses of every scene by loss + deepest sensor penetration (the paper's collision-aware ranking).
 
 Reads ``artifacts/runs/<set>/<method>/hypotheses.h5`` (with the sensors' contacts), each scene object's
-``objects/<obj>.h5`` (collision pieces and, for the re-scoring, the mesh), and config section ``rank`` (with
-``runtime.threads``, which changes no result). Writes ``ranked.h5`` beside it: per scene the top-k poses (S,
-K, 4, 4) with their scores, losses and penetrations (rows past ``n_poses`` are NaN), and the seconds of every
-step (encode, select, optimize, rank), so that the evaluation reads one file.
+``objects/<obj>.h5`` (collision pieces and, for the re-scoring, the mesh), and config section ``rank``. Writes ``ranked.h5`` beside it: per scene the top-k poses (S, K, 4, 4)
+with their scores, losses and penetrations (rows past ``n_poses`` are NaN), and the seconds of every step
+(encode, select, optimize, rank), so that the evaluation reads one file.
 """
 
 from __future__ import annotations
@@ -29,14 +28,13 @@ from tactile6d.run_artifacts import (
     scene_contacts,
 )
 from tactile6d.schemas import CONTACT_FIELDS
-from tactile6d.settings import RankSettings, threads_from_cfg
+from tactile6d.settings import RankSettings
 from tactile6d.steps.rank import load_mesh, load_pieces, rank
 
 
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
     settings = RankSettings.from_cfg(cfg.rank)
-    threads = threads_from_cfg(cfg.runtime)
     artifacts = cfg.paths.artifacts_dir
     run = layout.run_dir(artifacts, args.scene_set, args.method)
     hyp = read_artifact(run / "hypotheses.h5", "hypotheses")
@@ -58,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         candidates, losses_in = expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows], hyp["losses"][rows])
         t0 = time.perf_counter()
         ranked = rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings, surfaces[objects[s]],
-                      scene_contacts(hyp, s), meshes[objects[s]], threads)
+                      scene_contacts(hyp, s), meshes[objects[s]])
         seconds[s] = time.perf_counter() - t0
         n = n_poses[s] = len(ranked.poses)
         poses[s, :n], scores[s, :n], losses[s, :n], penetrations[s, :n] = (

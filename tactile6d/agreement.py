@@ -109,15 +109,14 @@ def poses_to_agreement(
     observed_depth: np.ndarray,
     step: int,
     free_margin: float = 0.0,
-    threads: int = 1,
 ) -> dict[str, np.ndarray]:
     """Render-and-compare P hypotheses T_world_object (P, 4, 4) against the observed patches.
 
     T_world_sensors (L, 4, 4); observed_mask (L, h, w) bool and observed_depth (L, h, w) m on the ray
     grid of ``step`` ((h, w) = (320, 240) / step; ``image_to_grid`` brings full-resolution arrays there);
-    free_margin: see ``depths_to_agreement``; threads: see ``gel_contact.poses_to_gel_depths``.
+    free_margin: see ``depths_to_agreement``.
     -> the (P, L) terms of ``depths_to_agreement`` plus ``predicted_depth`` (P, L, h, w) float32 m.
     """
-    predicted = gel_contact.poses_to_gel_depths(mesh, T_world_object, T_world_sensors, step, threads)
+    predicted = gel_contact.poses_to_gel_depths(mesh, T_world_object, T_world_sensors, step)
     terms = depths_to_agreement(observed_mask, observed_depth, predicted, free_margin)
     return {**terms, "predicted_depth": predicted}

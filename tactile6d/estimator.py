@@ -230,7 +230,7 @@ class Estimator:
         contacts: as ``contacts`` returned (default: the sensors' landmarks)."""
         poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
         return rank_step.rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses,
-                              self.settings.rank, self.surface, contacts, self.mesh, self.settings.threads)
+                              self.settings.rank, self.surface, contacts, self.mesh)
 
     def estimate(self, T_world_sensors, images=None) -> Estimate:
         """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.

@@ -13,7 +13,6 @@ pose and at the true pose, sensor by sensor, by their intersection over union.
 from __future__ import annotations
 
 import functools
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import trimesh
@@ -23,15 +22,14 @@ from tactile6d.geometry import invert_pose
 from tactile6d.render import DigitRenderer, MeshArrays, mesh_arrays
 
 
-@functools.lru_cache(maxsize=16)
-def depth_renderer(step: int, copy: int = 0) -> DigitRenderer:
+@functools.lru_cache(maxsize=8)
+def depth_renderer(step: int) -> DigitRenderer:
     """The simulator on the ray grid of ``step`` pixels, used for its geometry only.
 
     Its depth depends on nothing but the grid, the object and the pose: the background, lights and
     noise only shade, so a blank background serves. ``strict=False`` measures any press, however deep
     (an estimate may push an object into a sensor); ``force=0`` as in the scene sets. Cached: one
-    Embree device per step, copy and process. A renderer is not thread-safe: each thread of
-    ``poses_to_gel_depths`` uses its own ``copy``.
+    Embree device per step and process (a renderer is not thread-safe).
     """
     blank = np.zeros((sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH, 3), dtype=np.uint8)
     return DigitRenderer.from_default_config(blank, render_step=int(step), strict=False, force=0.0, workers=1)
@@ -42,39 +40,23 @@ def poses_to_gel_depths(
     T_world_object: np.ndarray,
     T_world_sensors: np.ndarray,
     step: int,
-    threads: int = 1,
 ) -> np.ndarray:
     """Each sensor's press depth for each object pose.
 
     mesh: the object (its own frame); T_world_object (P, 4, 4) or (4, 4); T_world_sensors (L, 4, 4);
     step: ray-grid step in pixels (divides 240 and 320). -> depth (P, L, h, w) float32 m, 0 where the
     object does not press into the gel; (h, w) = (320, 240) / step, row 0 at the top of the image.
-
-    threads: the (pose, sensor) pairs are shared among this many threads, each with its own renderer.
-    Embree casts without holding Python's lock, so two threads on two cores take about three quarters
-    of the time of one (docs/speed.md). The result does not depend on it.
     """
     arrays = mesh_arrays(mesh)
     T_objects = np.asarray(T_world_object, dtype=np.float64).reshape(-1, 4, 4)
     T_sensors = np.asarray(T_world_sensors, dtype=np.float64).reshape(-1, 4, 4)
-    pairs = [(p, i) for p in range(len(T_objects)) for i in range(len(T_sensors))]
-    n_threads = max(1, min(int(threads), len(pairs)))
-    # Made here, not in the threads: building a renderer reads the default config, which is not thread-safe.
-    renderers = [depth_renderer(int(step), copy) for copy in range(n_threads)]
-    out = np.zeros((len(T_objects), len(T_sensors), *renderers[0].grid_shape), dtype=np.float32)
+    renderer = depth_renderer(int(step))
+    out = np.zeros((len(T_objects), len(T_sensors), *renderer.grid_shape), dtype=np.float32)
     T_sensors_world = [invert_pose(T) for T in T_sensors]
-
-    def cast(copy: int) -> None:
-        for p, i in pairs[copy::n_threads]:
+    for p, T_wo in enumerate(T_objects):
+        for i, T_sw in enumerate(T_sensors_world):
             # Composed one pair at a time, as DigitRenderer.render does, so the result is bit-identical.
-            out[p, i] = renderers[copy].contact_depth(arrays, T_sensors_world[i] @ T_objects[p])
-
-    if n_threads == 1:
-        cast(0)
-    else:
-        # Short-lived threads: a pool kept between calls would not survive the fork of a worker process.
-        with ThreadPoolExecutor(n_threads) as pool:
-            list(pool.map(cast, range(n_threads)))
+            out[p, i] = renderer.contact_depth(arrays, T_sw @ T_wo)
     return out
 
 

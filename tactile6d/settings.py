@@ -181,32 +181,20 @@ class RankSettings:
 
 @dataclass(frozen=True)
 class Settings:
-    """All the estimator reads from the config: the select, optimize and rank sections, and
-    ``runtime.threads`` (conf/runtime/default.yaml: the threads of render-and-compare's ray casts; the
-    results do not depend on it)."""
+    """All the estimator reads from the config: the select, optimize and rank sections."""
 
     select: SelectSettings
     optimize: OptimizeSettings
     rank: RankSettings
-    threads: int
 
     @classmethod
     def from_cfg(cls, cfg: Mapping) -> Settings:
-        missing = [k for k in ("select", "optimize", "rank", "runtime") if k not in cfg]
+        missing = [k for k in ("select", "optimize", "rank") if k not in cfg]
         if missing:
             raise ConfigError(f"config lacks sections {missing}")
         return cls(
             SelectSettings.from_cfg(cfg["select"]),
             OptimizeSettings.from_cfg(cfg["optimize"]),
             RankSettings.from_cfg(cfg["rank"]),
-            threads_from_cfg(cfg["runtime"]),
         )
-
-
-def threads_from_cfg(section: Mapping) -> int:
-    """``runtime.threads``, checked: an integer >= 1."""
-    threads = section.get("threads")
-    if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
-        raise ConfigError(f"runtime.threads must be an integer >= 1, got {threads!r}")
-    return threads
 

@@ -99,7 +99,6 @@ def test_patch_points_are_the_pressed_gel_of_each_observed_mask_in_the_world_fra
     ({"rank.agreement_step": 7}, "agreement_step"),
     ({"rank.agreement_weight": -1.0}, "agreement"),
     ({"rank.candidates": 2}, "candidates"),
-    ({"runtime.threads": 0}, "runtime.threads"),
 ])
 def test_bad_contact_and_agreement_settings_are_config_errors(bad, message):
     with pytest.raises(ConfigError, match=message):

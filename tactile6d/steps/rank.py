@@ -30,7 +30,6 @@ def rank(
     surface=None,
     contacts: Contacts | None = None,
     mesh=None,
-    threads: int = 1,
 ) -> ranking.RankedPoses:
     """The top-k distinct poses by loss + deepest sensor penetration (the paper's collision-aware ranking).
 
@@ -51,8 +50,7 @@ def rank(
       the observed patches (source ``patch``; landmark contacts, as the baseline's, have none, and are
       ranked without it). Each pose's predicted contact on every gel is compared with the observed patch
       and ``agreement_weight`` (m) times the agreement cost is added to the score. ``mesh`` (the object,
-      ``trimesh.Trimesh`` or ``render.MeshArrays``) is required then. Its casts run on ``threads``
-      threads (``runtime.threads``; the result does not depend on it).
+      ``trimesh.Trimesh`` or ``render.MeshArrays``) is required then.
     """
     pieces = model.pieces
     contacts = contacts if contacts is not None else sensors_to_landmark_contacts(T_world_sensors)
@@ -93,7 +91,7 @@ def rank(
     scores = new_losses + depths.max(axis=1)
     if compare:
         scores = scores + settings.agreement_weight * agreement_cost(mesh, candidates, T_world_sensors, contacts,
-                                                                     settings, threads)
+                                                                     settings)
     kept = ranking.distinct_in_order(
         candidates, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
         float(np.radians(settings.dedup_rotation)), int(settings.top_k),
@@ -103,15 +101,15 @@ def rank(
 
 
 def agreement_cost(mesh, poses: np.ndarray, T_world_sensors: np.ndarray, contacts: Contacts,
-                   settings: RankSettings, threads: int = 1) -> np.ndarray:
+                   settings: RankSettings) -> np.ndarray:
     """Render-and-compare cost (P,) of poses (P, 4, 4) against the observed patches of ``contacts``:
     ``agreement.agreement_to_cost`` of the terms on the ray grid of ``rank.agreement_step`` pixels, a
-    block being pressed when at least half of its pixels are in the observed mask; cast on ``threads`` threads."""
+    block being pressed when at least half of its pixels are in the observed mask."""
     step = int(settings.agreement_step)
     observed_mask = agreement.image_to_grid(contacts.masks, step) >= 0.5
     observed_depth = agreement.image_to_grid(contacts.depths, step)
     terms = agreement.poses_to_agreement(mesh, poses, T_world_sensors, observed_mask, observed_depth, step,
-                                         float(settings.agreement_free_margin), int(threads))
+                                         float(settings.agreement_free_margin))
     return agreement.agreement_to_cost(
         terms,
         mask_weight=float(settings.agreement_mask_weight),
