@@ -305,10 +305,8 @@ class _RayCaster:
         # Embree works in float32: shift to the camera so coordinates stay small and precise.
         TriangleMesh(scene, (triangles - CAMERA_POSITION).astype(np.float32))
         origins = np.zeros((len(rays), 3), dtype=np.float32)
-        if t_max is None:
-            out = scene.run(origins, rays.astype(np.float32), output=1)
-        else:
-            out = scene.run(origins, rays.astype(np.float32), dists=np.asarray(t_max, dtype=np.float32), output=1)
+        dists = None if t_max is None else np.asarray(t_max, dtype=np.float32)
+        out = scene.run(origins, rays.astype(np.float32), dists=dists, output=1)
         return out["tfar"].astype(np.float64), out["primID"], out["u"], out["v"]
 
 
@@ -469,7 +467,8 @@ class DigitRenderer:
         """The press depth of ``contact`` alone, (h, w) float32 metres, without shading: for callers that
         need only where and how deep the object presses (render-and-compare). Bit-identical to it.
 
-        Its rays stop at the gel (``_gel_hits``' ``stop_at_gel``), which casts a third faster (docs/speed.md).
+        Its rays stop at the gel (``_gel_hits``' ``stop_at_gel``), which spares Embree some traversal
+        (about 6 ms of the 90 casts of an estimate, docs/speed.md).
         """
         arrays = mesh_arrays(mesh)
         depth = np.zeros(self.grid_shape[0] * self.grid_shape[1], dtype=np.float32)
