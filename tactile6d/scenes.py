@@ -121,11 +121,20 @@ def boxes_overlap(T_a: np.ndarray, T_b: np.ndarray, center=BOX_CENTER, half=BOX_
 
 
 def body_penetrates(surface: contact.SurfaceSamples, T_object_sensor: np.ndarray, margin: float = 0.0) -> bool:
-    """Whether any of the object's surface lies inside the sensor's body box (the gel lies beyond it,
-    at x > 19.6 mm, so a pressed gel alone never counts)."""
+    """Whether the sensor's body box and the object overlap: some of the object's surface lies inside the
+    box, or the whole box lies inside the object (the gel lies beyond the box, at x > 19.6 mm, so a
+    pressed gel alone never counts).
+
+    The second case has no surface inside the box. It happens where a candidate point's normal faces
+    into the solid's interior, as on the inner lip of a can's rim: a sensor "touching" there from along
+    that normal sits wholly inside the can (offaxis scene 002_master_chef_can/scene_2 before 2026-11-23).
+    """
     local = transform_points(invert_pose(T_object_sensor), surface.points)
     inside = np.all(np.abs(local - BOX_CENTER) < BOX_HALF_EXTENTS - margin, axis=1)
-    return bool(inside.any())
+    if inside.any():
+        return True
+    box_center = transform_points(T_object_sensor, BOX_CENTER[None])
+    return bool(surface.mesh.contains(box_center)[0])
 
 
 @dataclass(frozen=True)

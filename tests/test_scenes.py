@@ -51,6 +51,19 @@ def test_body_penetration(box):
     assert not scenes.body_penetrates(surface, T_edge)
 
 
+def test_body_wholly_inside_the_object_penetrates():
+    # A hollow-free big box with the sensor's whole body inside it: no surface sample lies in the body
+    # box, yet the sensor is inside the solid (a candidate normal that faces inward places it there).
+    mesh = trimesh.creation.box(extents=(0.30, 0.30, 0.30))
+    surface = contact.sample_surface(mesh, spacing=0.004)
+    T_inside = make_pose(np.eye(3), -BOX_CENTER)  # body box centred on the object's centre
+    local = (surface.points - T_inside[:3, 3]) @ T_inside[:3, :3]
+    assert not np.any(np.all(np.abs(local - BOX_CENTER) < BOX_HALF_EXTENTS, axis=1))  # the old test's blind spot
+    assert scenes.body_penetrates(surface, T_inside)
+    T_outside = make_pose(np.eye(3), [0.3, 0.0, 0.0])
+    assert not scenes.body_penetrates(surface, T_outside)
+
+
 def test_validation_scene_mixes_types_without_collisions(box):
     mesh, surface = box
     rng = np.random.default_rng(1)
