@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tactile6d.errors import InputError
-from tactile6d.geometry import make_pose, random_rotations, rotmat_to_rotvec, rotvec_to_rotmat, xi_to_pose
+from tactile6d.geometry import covariances_to_rotations, make_pose, random_rotations, rotmat_to_rotvec, rotvec_to_rotmat, xi_to_pose
 
 # The 14 directions of the paper's translation hypotheses: 6 face centres, then 8 cube corners
 # (unnormalised, so the corners are sqrt(3) * offset away).
@@ -114,7 +114,7 @@ def weighted_kabsch(
     object_points (N, L, 3), sensor_points (L, 3) or (N, L, 3), weights (N, L) >= 0 -> (N, 4, 4).
     directions: optional (n (N, L, 3) object-frame unit vectors, m (L, 3) or (N, L, 3) world unit
     vectors, v (N, L) >= 0 weights), which only enter the rotation. Without them L >= 3
-    non-collinear points; a reflection in the SVD solution is turned into a rotation.
+    non-collinear points; the rotation is ``geometry.covariances_to_rotations`` of the weighted cross-covariance (never a reflection).
     """
     total = weights.sum(axis=1, keepdims=True)
     w = weights / total
@@ -126,10 +126,7 @@ def weighted_kabsch(
         n_obj, m_world, v = directions
         m_world = np.broadcast_to(m_world, n_obj.shape)
         cov = cov + np.einsum("nl,nla,nlb->nab", v / total, m_world, n_obj)
-    u, _, vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(u @ vt))
-    d = np.where(d == 0, 1.0, d)
-    R = u @ (np.concatenate([np.ones((len(d), 2)), d[:, None]], axis=1)[:, :, None] * vt)
+    R = covariances_to_rotations(cov)
     return make_pose(R, s_mean - np.einsum("nab,nb->na", R, p_mean))
 
 

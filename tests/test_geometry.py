@@ -131,3 +131,57 @@ def test_orthonormal_frame_is_rotation_with_given_x():
     R = g.orthonormal_frame(x)
     assert np.all(g.is_rotation(R))
     np.testing.assert_allclose(R[:, :, 0], x, atol=1e-12)
+
+
+def naive_kabsch_rotation(H):
+    """Reference: one SVD per matrix, the smallest singular direction flipped where it gives a reflection."""
+    u, _, vt = np.linalg.svd(H)
+    d = 1.0 if np.linalg.det(u @ vt) >= 0 else -1.0
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+@given(seeds)
+def test_symmetric_to_eigen_matches_eigh(seed):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(64, 3, 3)) * rng.uniform(1e-4, 1e2, (64, 1, 1))
+    A[:8, :, 2] = A[:8, :, 1]  # rank 2
+    A[8:12] = np.eye(3)  # triple eigenvalue
+    B = np.einsum("nab,nac->nbc", A, A)
+    w, V = g.symmetric_to_eigen(B)
+    # Tolerances 1e3 x float64's epsilon: this machine has been seen to return results off by ~1e-11 at
+    # random (docs/reproducibility.md); a wrong rotation would be off by far more.
+    np.testing.assert_allclose(np.einsum("nab,nb,ncb->nac", V, w, V), B, atol=1e-10 * np.abs(B).max())
+    np.testing.assert_allclose(np.einsum("nab,nac->nbc", V, V), np.broadcast_to(np.eye(3), B.shape), atol=1e-10)
+    np.testing.assert_allclose(np.sort(w, axis=1), np.linalg.eigvalsh(B), atol=1e-10 * np.abs(B).max())
+
+
+@given(seeds)
+def test_covariances_to_rotations_matches_svd(seed):
+    rng = np.random.default_rng(seed)
+    # Cross-covariances as weighted_kabsch builds them: three or more centred points, noisy matches.
+    rows = []
+    for n_points in (3, 3, 4, 6):
+        p = rng.normal(size=(50, n_points, 3)) * 0.05
+        R = g.random_rotations(50, rng)
+        s = np.einsum("nab,nlb->nla", R, p) + rng.normal(size=(50, n_points, 3)) * rng.uniform(0, 0.05)
+        p, s = p - p.mean(axis=1, keepdims=True), s - s.mean(axis=1, keepdims=True)
+        rows.append(np.einsum("nla,nlb->nab", s, p))
+    rows.append(rng.normal(size=(50, 3, 3)))  # arbitrary, half of them with det < 0 (reflections)
+    H = np.concatenate(rows)
+    R = g.covariances_to_rotations(H)
+    assert np.all(g.is_rotation(R, atol=1e-10))
+    reference = np.stack([naive_kabsch_rotation(h) for h in H])
+    np.testing.assert_allclose(R, reference, atol=1e-9)
+
+
+def test_covariances_to_rotations_degenerate_cases():
+    # Collinear points (rank 1): every turn about the line is optimal; the result is still a rotation
+    # and reaches the optimum trace(R^T H). Equal singular values: any optimum is fine, likewise.
+    rng = np.random.default_rng(3)
+    line = rng.normal(size=(3,))
+    H = np.stack([np.outer(rng.normal(size=3), line), np.eye(3), np.diag([1.0, 1.0, -1.0]), np.zeros((3, 3)),
+                  np.diag([2.0, 2.0, 0.0])])
+    R = g.covariances_to_rotations(H)
+    assert np.all(g.is_rotation(R, atol=1e-10))
+    best = np.array([np.trace(naive_kabsch_rotation(h).T @ h) for h in H])
+    np.testing.assert_allclose(np.einsum("nab,nab->n", R, H), best, atol=1e-10)
