@@ -37,6 +37,7 @@ from tactile6d.steps.encode import (
     load_background,
     load_database_angles,
     load_patch_model,
+    read_angles,
     read_contacts,
 )
 from tactile6d.steps.select import select
@@ -92,9 +93,9 @@ def main(argv: list[str] | None = None) -> int:
         T = check_sensor_poses(scenes.T_world_sensors[s])
         t0 = time.perf_counter()
         images = check_images(scenes.images[s], n_sensors) if encoder is not None else None
-        if encoder is not None:
-            angles[s] = encoder(images)
         contacts.append(read_contacts(settings, T, images, no_contact, patch_model))
+        if encoder is not None:
+            angles[s] = read_angles(encoder, settings, images, contacts[s], T, no_contact)
         t1 = time.perf_counter()
         seconds[s, 0] = t1 - t0
         try:

@@ -200,12 +200,20 @@ class Estimator:
 
     # Each step is public so that a caller can run, time or inspect it alone.
 
-    def encode(self, images) -> np.ndarray:
-        """(L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad)."""
+    def encode(self, images, contacts: Contacts | None = None, T_world_sensors=None) -> np.ndarray:
+        """(L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad).
+
+        With ``select.centre_images`` and contacts (as ``contacts`` returned, for sensors at
+        T_world_sensors (L, 4, 4)), each image whose contact was read from it is first moved so that
+        contact sits at the image centre (``steps.encode.centre_images``); without contacts, as is.
+        """
         if self.encoder is None:
             raise InputError("this estimator has no image encoder (built for the baseline)")
         images = np.asarray(images)
-        return np.asarray(self.encoder(images), dtype=np.float64).reshape(images.shape[0])
+        if contacts is None:
+            return np.asarray(self.encoder(images), dtype=np.float64).reshape(images.shape[0])
+        return encode_step.read_angles(self.encoder, self.settings.select, images, contacts,
+                                       check_sensor_poses(T_world_sensors), self.no_contact)
 
     def contacts(self, T_world_sensors, images=None) -> Contacts:
         """The sensors' contacts (``select.contacts``): their landmarks, or each image's contact patch
@@ -244,8 +252,8 @@ class Estimator:
             images = check_images(images, T.shape[0])
         seconds = {}
         t0 = time.perf_counter()
-        angles = self.encode(images) if ours else None
         contacts = self.contacts(T, images)
+        angles = self.encode(images, contacts, T) if ours else None
         seconds["encode"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()

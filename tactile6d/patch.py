@@ -65,6 +65,7 @@ from tactile6d.geometry import (
 )
 from tactile6d.render import (
     CAMERA_POSITION,
+    CAMERA_YFOV,
     DigitRenderer,
     gel_surface,
     mesh_arrays,
@@ -190,6 +191,41 @@ def images_to_difference(image, no_contact) -> np.ndarray:
     if saturated > _MAX_SATURATED_FRACTION:
         raise InputError(f"{saturated:.0%} of the tactile image's pixels are saturated (0 or 255): no contact shading to read")
     return img.astype(np.float32) - bg.astype(np.float32)
+
+
+# --- moving a contact to the image centre -----------------------------------------------------------------
+
+
+def point_to_pixel(point: np.ndarray) -> np.ndarray:
+    """Where the camera sees a point: point (..., 3) m, sensor frame, in front of the camera -> (..., 2)
+    (row, column) in pixels, continuous, pixel (i, j) covering [i, i + 1) x [j, j + 1): the inverse of
+    ``render.pixel_rays``. The image centre (160, 120) looks along +x, through the gel's apex."""
+    rel = np.asarray(point, dtype=np.float64) - CAMERA_POSITION
+    focal = (H / 2.0) / np.tan(CAMERA_YFOV / 2.0)
+    return np.stack([H / 2.0 - focal * rel[..., 2] / rel[..., 0], W / 2.0 - focal * rel[..., 1] / rel[..., 0]], axis=-1)
+
+
+def shift_difference(image: np.ndarray, no_contact: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """The image with its difference from the no-contact image moved by whole pixels: (320, 240, 3) uint8
+    RGB x2 -> (320, 240, 3) uint8 RGB, the no-contact image where the moved difference leaves none.
+
+    rows > 0 moves the contact down (toward -z), cols > 0 right (toward -y). Used to put an off-centre
+    contact where the database's contacts are, at the centre, before the autoencoder reads it.
+    """
+    img, bg = check_image(image, "image"), check_image(no_contact, "no-contact image")
+    diff = img.astype(np.int16) - bg.astype(np.int16)
+    moved = np.zeros_like(diff)
+    rows, cols = int(np.clip(rows, -H, H)), int(np.clip(cols, -W, W))
+    moved[max(rows, 0):H + min(rows, 0), max(cols, 0):W + min(cols, 0)] = \
+        diff[max(-rows, 0):H + min(-rows, 0), max(-cols, 0):W + min(-cols, 0)]
+    return np.clip(bg.astype(np.int16) + moved, 0, 255).astype(np.uint8)
+
+
+def centre_contact(image: np.ndarray, no_contact: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """The image moved so that the contact at ``point`` (3,) m, sensor frame (``ContactPatch.point``),
+    appears at the image centre (``shift_difference``, to the nearest pixel)."""
+    row, col = point_to_pixel(point)
+    return shift_difference(image, no_contact, int(np.rint(H / 2.0 - row)), int(np.rint(W / 2.0 - col)))
 
 
 # --- noise, smoothing, mask --------------------------------------------------------------------------------

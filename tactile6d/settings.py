@@ -42,6 +42,7 @@ class SelectSettings:
     normal_tol_deg: float | None
     normal_max_sensors: int | None
     contacts: str
+    centre_images: bool
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> SelectSettings:
@@ -71,6 +72,11 @@ class SelectSettings:
         """Whether each image's contact patch gives its sensor's contact: source ``patch``, method ``ours``
         (the baseline reads no image, so it keeps the paper's landmarks)."""
         return self.method == "ours" and self.contacts == "patch"
+
+    @property
+    def centres_images(self) -> bool:
+        """Whether images are moved so their read contact sits at the centre before their angle is read."""
+        return self.reads_patches and bool(self.centre_images)
 
     def normals_apply(self, n_sensors: int) -> bool:
         """Whether the normal check applies to an estimate from ``n_sensors`` sensors."""

@@ -190,6 +190,73 @@ def test_another_units_background(data_dir, mesh_of, model):
 # --- no contact, bad input ----------------------------------------------------------------------------------
 
 
+# --- moving a contact to the image centre -----------------------------------------------------------------
+
+
+def test_point_to_pixel_inverts_pixel_rays():
+    rays = pixel_rays(W, H)
+    rng = np.random.default_rng(0)
+    rows, cols = rng.integers(0, H, 50), rng.integers(0, W, 50)
+    points = CAMERA_POSITION + rng.uniform(0.01, 0.03, (50, 1)) * rays[rows, cols]
+    np.testing.assert_allclose(patch.point_to_pixel(points), np.stack([rows + 0.5, cols + 0.5], axis=1), atol=1e-9)
+    np.testing.assert_allclose(patch.point_to_pixel(sensor.CONTACT_POINT), [H / 2, W / 2], atol=1e-9)
+
+
+def test_shift_difference_moves_only_the_difference(no_contact):
+    image = no_contact.copy()
+    image[100:120, 50:60] = 255 - no_contact[100:120, 50:60]
+    moved = patch.shift_difference(image, no_contact, 30, -20)
+    diff = image.astype(int) - no_contact
+    moved_diff = np.clip(no_contact[130:150, 30:40].astype(int) + diff[100:120, 50:60], 0, 255) - no_contact[130:150, 30:40]
+    np.testing.assert_array_equal(moved[130:150, 30:40].astype(int) - no_contact[130:150, 30:40], moved_diff)
+    outside = np.ones((H, W), dtype=bool)
+    outside[130:150, 30:40] = False
+    np.testing.assert_array_equal(moved[outside], no_contact[outside])  # nothing else changed
+    np.testing.assert_array_equal(patch.shift_difference(image, no_contact, 0, 0), image)
+    np.testing.assert_array_equal(patch.shift_difference(image, no_contact, H, 0), no_contact)  # moved out of view
+
+
+def test_centre_contact_puts_an_off_centre_press_at_the_centre(renderer, mesh_of, model, no_contact):
+    result, p_true, _, _ = press(renderer, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0],
+                                 offset=(0.004, -0.003), seed=7)
+    off = patch.image_to_patch(result.image, no_contact, model)
+    assert np.linalg.norm(patch.point_to_pixel(off.point) - [H / 2, W / 2]) > 20  # really off-centre
+    centred = patch.image_to_patch(patch.centre_contact(result.image, no_contact, off.point), no_contact, model)
+    assert centred.contact
+    assert np.linalg.norm(patch.point_to_pixel(centred.point) - [H / 2, W / 2]) < 2.0
+    assert abs(centred.mask.sum() / off.mask.sum() - 1.0) < 0.1  # the same press, moved
+
+
+def test_read_angles_centres_only_contacts_read_from_images(renderer, mesh_of, model, no_contact):
+    from tactile6d.config import compose_config
+    from tactile6d.contacts import patches_to_contacts
+    from tactile6d.settings import SelectSettings
+    from tactile6d.steps.encode import read_angles
+
+    result, *_ = press(renderer, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0], offset=(-0.004, 0.002), seed=8)
+    images = np.stack([result.image, renderer.no_contact(seed=9)])
+    T = np.stack([np.eye(4), np.eye(4)])
+    T[:, :3, 3] = [[0.1, 0.0, 0.2], [0.0, 0.1, 0.2]]
+    contacts = patches_to_contacts([patch.image_to_patch(im, no_contact, model) for im in images], T)
+    assert contacts.from_patch.tolist() == [True, False]
+    seen = []
+
+    def encoder(batch):
+        seen.append(np.array(batch))
+        return np.arange(len(batch), dtype=float)
+
+    on = SelectSettings.from_cfg(compose_config(["select.contacts=patch", "select.centre_images=true"]).select)
+    np.testing.assert_array_equal(read_angles(encoder, on, images, contacts, T, no_contact), [0.0, 1.0])
+    centred = patch.image_to_patch(seen[-1][0], no_contact, model)
+    assert np.linalg.norm(patch.point_to_pixel(centred.point) - [H / 2, W / 2]) < 2.0
+    np.testing.assert_array_equal(seen[-1][1], images[1])  # no contact read: left as it is
+    off = SelectSettings.from_cfg(compose_config(["select.contacts=patch", "select.centre_images=false"]).select)
+    read_angles(encoder, off, images, contacts, T, no_contact)
+    np.testing.assert_array_equal(seen[-1], images)
+    landmark = SelectSettings.from_cfg(compose_config(["select.contacts=landmark", "select.centre_images=true"]).select)
+    assert not landmark.centres_images
+
+
 def test_no_contact_image_gives_an_explicit_no_contact(renderer, model, no_contact):
     for image in (renderer.no_contact(seed=3), no_contact):
         est = patch.image_to_patch(image, no_contact, model)

@@ -5,7 +5,10 @@ calibration).
 The angle of an image is ``arccos(cos_sim(h, h_nc))``: how far its latent ``h`` is from the latent
 ``h_nc`` of the no-contact image, the one number tactile selection compares with the database's. The
 contacts are the paper's landmarks, or each image's contact patch (``select.contacts``,
-``tactile6d.contacts``).
+``tactile6d.contacts``). With ``select.centre_images`` an image whose contact was read from its patch
+is moved so that contact sits at the image centre before its angle is read: every database image was
+rendered with the gel's apex on the surface, so its contact is at the centre, and the angle of the same
+press seen 4 mm off-centre differs by more than ``select.delta_h`` (docs/contact_patch.md).
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ from tactile6d.data import DataStore
 from tactile6d.errors import DataError, InputError
 from tactile6d.io import read_artifact, read_tactile_image
 from tactile6d.object_artifacts import require
-from tactile6d.patch import PatchModel, image_to_patch, load_model
+from tactile6d.geometry import invert_pose, transform_points
+from tactile6d.patch import PatchModel, centre_contact, image_to_patch, load_model
 from tactile6d.settings import SelectSettings
 
 
@@ -76,6 +80,26 @@ class LatentAngleEncoder:
 
     def __call__(self, images: np.ndarray) -> np.ndarray:
         return latent_angles(encode(self.model, self.norm, images, self.background), self.latent_nc)
+
+
+def centre_images(images: np.ndarray, no_contact: np.ndarray, contacts: Contacts, T_world_sensors: np.ndarray) -> np.ndarray:
+    """images (L, 320, 240, 3) uint8 RGB -> the same, each image whose contact was read from its patch
+    (``contacts.from_patch``) moved so that contact appears at the image centre (``patch.centre_contact``);
+    the others unchanged. no_contact (320, 240, 3) uint8 RGB; T_world_sensors (L, 4, 4)."""
+    out = np.array(images, copy=True)
+    for i in np.flatnonzero(contacts.from_patch):
+        point = transform_points(invert_pose(T_world_sensors[i]), contacts.points[i][None])[0]
+        out[i] = centre_contact(images[i], no_contact, point)
+    return out
+
+
+def read_angles(encoder, settings: SelectSettings, images: np.ndarray, contacts: Contacts,
+                T_world_sensors: np.ndarray, no_contact: np.ndarray | None) -> np.ndarray:
+    """The images' latent angles (L,) rad by ``encoder`` (images (L, 320, 240, 3) uint8 RGB -> (L,)),
+    after ``centre_images`` when ``settings.centres_images``. contacts: as ``read_contacts`` returned."""
+    if settings.centres_images:
+        images = centre_images(images, no_contact, contacts, T_world_sensors)
+    return np.asarray(encoder(images), dtype=np.float64).reshape(len(images))
 
 
 def load_patch_model(artifacts_dir: str | Path) -> PatchModel:
