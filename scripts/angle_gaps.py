@@ -1,6 +1,7 @@
 """How far each sensor's latent angle lies from that of the database point at its true contact.
 
     python scripts/angle_gaps.py --artifacts artifacts --scenes validation
+    python scripts/angle_gaps.py --artifacts artifacts --scenes offaxis --centre   # select.centre_images
 
 For every sensor of the scene set: the gap between its image's latent angle and the angle of the
 database point nearest its true contact (``tactile6d.latent_gaps.triplet_gaps``, which the ``ae_quality``
@@ -25,12 +26,16 @@ from tactile6d import autoencoder, layout
 from tactile6d.config import compose_config
 from tactile6d.io import read_artifact
 from tactile6d.latent_gaps import triplet_gaps
+from tactile6d.settings import SelectSettings
+from tactile6d.steps.encode import centre_images, load_patch_model, read_contacts
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--artifacts", default="artifacts")
-    parser.add_argument("--scenes", default="validation", help="scene set: validation or caddeo2023")
+    parser.add_argument("--scenes", default="validation", help="scene set: validation, offaxis or caddeo2023")
+    parser.add_argument("--centre", action="store_true",
+                        help="move each image's contact (read from its patch) to the image centre first")
     parser.add_argument("overrides", nargs="*", help="config overrides (objects, select.delta_h)")
     args = parser.parse_args()
     cfg = compose_config(args.overrides)
@@ -39,9 +44,18 @@ def main() -> int:
     points = {n: read_artifact(layout.surface_file(args.artifacts, n), "surface")["points"] for n in names}
     model, norm, _ = autoencoder.load_checkpoint(layout.ae_checkpoint(args.artifacts))
     background = read_artifact(layout.database_file(args.artifacts, names[0]), "database")["background"]
-    gaps = triplet_gaps(args.artifacts, angles, points, model, norm, background, args.scenes)
+    prepare = None
+    if args.centre:
+        settings = SelectSettings.from_cfg({**cfg.select, "method": "ours", "contacts": "patch"})
+        patch_model = load_patch_model(args.artifacts)
+
+        def prepare(images, T_world_sensors):
+            contacts = read_contacts(settings, T_world_sensors, images, background, patch_model)
+            return centre_images(images, background, contacts, T_world_sensors)
+
+    gaps = triplet_gaps(args.artifacts, angles, points, model, norm, background, args.scenes, prepare)
     delta_h = float(cfg.select.delta_h)
-    print(json.dumps({"scenes": args.scenes, "sensors": int(gaps.size), "gap_median": float(np.median(gaps)),
+    print(json.dumps({"scenes": args.scenes, "centred": args.centre, "sensors": int(gaps.size), "gap_median": float(np.median(gaps)),
                       "gap_p90": float(np.quantile(gaps, 0.9)), "delta_h": delta_h,
                       "share_under_delta_h": float(np.mean(gaps < delta_h))}))
     return 0

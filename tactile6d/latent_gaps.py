@@ -17,14 +17,16 @@ from tactile6d.io import read_artifact
 
 
 def triplet_gaps(artifacts: str, angles: dict, points: dict, model, norm, background,
-                 scene_set: str = "caddeo2023") -> np.ndarray:
+                 scene_set: str = "caddeo2023", prepare=None) -> np.ndarray:
     """|angle(sensor image) - angle(database point nearest the true contact)| per sensor of a scene set,
     sensor by sensor, scene by scene (scenes of objects missing from ``angles`` are skipped).
 
     artifacts: the artifacts directory (reads the scene set and each object's ``latents``); angles and
     points: per object name, its database points' latent angles (M,) radians and positions (M, 3)
     metres in the object frame; model, norm: ``autoencoder.load_checkpoint``'s; background: the
-    no-contact image (320, 240, 3) uint8. Returns (n_sensors,) radians.
+    no-contact image (320, 240, 3) uint8; prepare: optional ``(images (L, 320, 240, 3), T_world_sensors
+    (L, 4, 4)) -> images`` applied before encoding (``select.centre_images``, scripts/angle_gaps.py).
+    Returns (n_sensors,) radians.
     """
     scenes = read_artifact(layout.scenes_file(artifacts, scene_set), "scenes")
     gaps = []
@@ -32,8 +34,10 @@ def triplet_gaps(artifacts: str, angles: dict, points: dict, model, norm, backgr
         if obj not in angles:
             continue
         latent_nc = read_artifact(layout.latents_file(artifacts, obj), "latents")["latent_nc"]
-        image_angles = autoencoder.latent_angles(
-            autoencoder.encode(model, norm, scenes["images"][s], background), latent_nc)
+        images = scenes["images"][s]
+        if prepare is not None:
+            images = prepare(images, scenes["T_world_sensors"][s])
+        image_angles = autoencoder.latent_angles(autoencoder.encode(model, norm, images, background), latent_nc)
         local = transform_points(invert_pose(scenes["T_world_object"][s]), scenes["contact_points"][s])
         _, nearest = cKDTree(points[obj]).query(local)
         gaps.extend(np.abs(image_angles - angles[obj][nearest]).tolist())

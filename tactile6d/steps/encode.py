@@ -27,9 +27,9 @@ from tactile6d.contacts import (
 )
 from tactile6d.data import DataStore
 from tactile6d.errors import DataError, InputError
+from tactile6d.geometry import invert_pose, transform_points
 from tactile6d.io import read_artifact, read_tactile_image
 from tactile6d.object_artifacts import require
-from tactile6d.geometry import invert_pose, transform_points
 from tactile6d.patch import PatchModel, centre_contact, image_to_patch, load_model
 from tactile6d.settings import SelectSettings
 
