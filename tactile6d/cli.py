@@ -19,6 +19,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("bench", "estimate"): ("bench_estimate", "seconds per estimate (default, baseline, faithful) and peak memory"),
     ("bench", "batch"): ("bench_batch", "start-up and per-scene seconds of one `estimate` call on the paper's triplets"),
     ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
+    ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),
 }
 
 

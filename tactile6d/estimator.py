@@ -198,6 +198,12 @@ class Estimator:
         surface = sample_surface(mesh) if settings.rank.refine else None
         return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh)
 
+    def with_settings(self, settings: Settings) -> Estimator:
+        """The same object's estimator with other select/optimize/rank settings, sharing every array
+        (the same checks as the constructor: InputError when the new settings need what this one lacks)."""
+        return Estimator(self.points, self.penetration_model.pieces, self.db_angles, self.encoder, settings,
+                         self.normals, self.surface, self.no_contact, self.patch_model, self.mesh)
+
     # Each step is public so that a caller can run, time or inspect it alone.
 
     def encode(self, images, contacts: Contacts | None = None, T_world_sensors=None) -> np.ndarray:
@@ -250,12 +256,23 @@ class Estimator:
         ours = self.settings.select.method == "ours"
         if ours or images is not None:
             images = check_images(images, T.shape[0])
-        seconds = {}
         t0 = time.perf_counter()
         contacts = self.contacts(T, images)
         angles = self.encode(images, contacts, T) if ours else None
-        seconds["encode"] = time.perf_counter() - t0
+        encode_seconds = time.perf_counter() - t0
+        estimate = self.estimate_encoded(T, contacts, angles)
+        steps = {k: estimate.seconds[k] for k in STEPS[1:]}
+        estimate.seconds.clear()
+        estimate.seconds.update(encode=encode_seconds, **steps, total=time.perf_counter() - start)
+        return estimate
 
+    def estimate_encoded(self, T_world_sensors, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
+        """The ranked poses from what the images say, already read: the sensors' contacts (as ``contacts``
+        returns) and the images' latent angles (L,) rad (``encode``; None for the baseline). Runs select,
+        optimize and rank; ``seconds`` has those steps and their total."""
+        start = time.perf_counter()
+        T = check_sensor_poses(T_world_sensors)
+        seconds = {}
         t0 = time.perf_counter()
         chosen = self.select(contacts, angles)
         seconds["select"] = time.perf_counter() - t0

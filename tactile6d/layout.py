@@ -66,3 +66,8 @@ def run_dir(artifacts_dir: str | Path, scene_set: str, method: str) -> Path:
 def metrics_file(artifacts_dir: str | Path, name: str) -> Path:
     """DVC metrics: ``<artifacts>/metrics/<name>.json``."""
     return Path(artifacts_dir) / "metrics" / f"{name}.json"
+
+
+def identify_calibration_file(artifacts_dir: str | Path) -> Path:
+    """The identification score's weights fitted on the validation scenes (stage calibrate_identify)."""
+    return Path(artifacts_dir) / "identify" / "calibration.json"

@@ -79,7 +79,24 @@ class LatentAngleEncoder:
         return cls(model, norm, background, latent_nc)
 
     def __call__(self, images: np.ndarray) -> np.ndarray:
-        return latent_angles(encode(self.model, self.norm, images, self.background), self.latent_nc)
+        return self.angles(self.latents(images))
+
+    def latents(self, images: np.ndarray) -> np.ndarray:
+        """(L, 320, 240, 3) uint8 RGB -> (L, latent_dim) latents: the network's part of the encoding."""
+        return encode(self.model, self.norm, images, self.background)
+
+    def angles(self, latents: np.ndarray) -> np.ndarray:
+        """(L, latent_dim) latents -> (L,) angles (rad) against this encoder's no-contact latent."""
+        return latent_angles(latents, self.latent_nc)
+
+    def encodes_like(self, other: LatentAngleEncoder) -> bool:
+        """Whether ``other`` gives the same latents for the same images (same network, normalisation and
+        background), so that images can be encoded once for both; their no-contact latents may differ."""
+        if self.model is not other.model:
+            mine, theirs = self.model.state_dict(), other.model.state_dict()
+            if mine.keys() != theirs.keys() or any(not mine[k].equal(theirs[k]) for k in mine):
+                return False
+        return self.norm == other.norm and np.array_equal(self.background, other.background)
 
 
 def centre_images(images: np.ndarray, no_contact: np.ndarray, contacts: Contacts, T_world_sensors: np.ndarray) -> np.ndarray:
@@ -97,9 +114,16 @@ def read_angles(encoder, settings: SelectSettings, images: np.ndarray, contacts:
                 T_world_sensors: np.ndarray, no_contact: np.ndarray | None) -> np.ndarray:
     """The images' latent angles (L,) rad by ``encoder`` (images (L, 320, 240, 3) uint8 RGB -> (L,)),
     after ``centre_images`` when ``settings.centres_images``. contacts: as ``read_contacts`` returned."""
-    if settings.centres_images:
-        images = centre_images(images, no_contact, contacts, T_world_sensors)
+    images = images_to_encode(settings, images, contacts, T_world_sensors, no_contact)
     return np.asarray(encoder(images), dtype=np.float64).reshape(len(images))
+
+
+def images_to_encode(settings: SelectSettings, images: np.ndarray, contacts: Contacts,
+                     T_world_sensors: np.ndarray, no_contact: np.ndarray | None) -> np.ndarray:
+    """The images as the encoder sees them: ``centre_images`` when ``settings.centres_images``, else as given."""
+    if settings.centres_images:
+        return centre_images(images, no_contact, contacts, T_world_sensors)
+    return images
 
 
 def load_patch_model(artifacts_dir: str | Path) -> PatchModel:

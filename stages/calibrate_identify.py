@@ -1,0 +1,68 @@
+"""Stage calibrate_identify: the identification score's weights, fitted on the validation scenes.
+
+Every validation scene is screened against every object of ``objects.names`` (``Identifier.candidates``:
+the images read once, each object estimated with ``identify.screen``), and the weights of the
+conditional logit over the best poses' features are fitted by maximum likelihood
+(``identification.fit_weights``). Validation only: the test set never enters the calibration. Writes
+``artifacts/identify/calibration.json``: the feature names, the weights, the objects and scene set
+used, and the fitted score's top-1 / top-3 accuracy on those same scenes (an optimistic figure; the
+``evaluate`` figures on other sets are the honest ones).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from tactile6d import identification, layout
+from tactile6d.config import parse_stage_args
+from tactile6d.errors import exit_on_error
+from tactile6d.identifier import Identifier
+from tactile6d.io import read_artifact, write_json
+from tactile6d.optimize import use_cpu_devices_for
+
+SCENE_SET = "validation"
+L2 = 1e-3  # ridge on the weights: keeps them finite when every true object already scores best
+
+
+def main(argv: list[str] | None = None) -> int:
+    _, cfg = parse_stage_args(argv, __doc__.splitlines()[0])
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    artifacts = cfg.paths.artifacts_dir
+    objects = [str(o) for o in cfg.objects.names]
+    identifier = Identifier.from_artifacts(objects, artifacts, cfg, calibrated=False)
+    scenes = read_artifact(layout.scenes_file(artifacts, SCENE_SET), "scenes")
+    truth = np.array([objects.index(str(o)) for o in scenes["objects"]])
+    t0 = time.perf_counter()
+    features = []
+    for s in tqdm(range(len(truth)), desc=f"screening {SCENE_SET} x {len(objects)} objects", unit="scene"):
+        found, _ = identifier.candidates(scenes["T_world_sensors"][s], scenes["images"][s])
+        features.append(np.stack([c.features for c in found]))
+    features = np.stack(features)
+    weights = identification.fit_weights(features, truth, L2)
+    probabilities = identification.scores_to_probabilities(identification.features_to_scores(features, weights))
+    rank_of_truth = (probabilities > probabilities[np.arange(len(truth)), truth][:, None]).sum(axis=1)
+    out = {
+        "features": list(identification.FEATURES),
+        "weights": weights.tolist(),
+        "objects": objects,
+        "scene_set": SCENE_SET,
+        "n_scenes": int(len(truth)),
+        "top1_on_calibration_scenes": float(np.mean(rank_of_truth == 0)),
+        "top3_on_calibration_scenes": float(np.mean(rank_of_truth < 3)),
+        "mean_log_likelihood": -identification.negative_log_likelihood(weights, features, truth),
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    path = layout.identify_calibration_file(artifacts)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, out)
+    print(f"weights {dict(zip(out['features'], np.round(weights, 4)))}; top-1 on {SCENE_SET} "
+          f"{100 * out['top1_on_calibration_scenes']:.1f} % -> {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(exit_on_error(main))

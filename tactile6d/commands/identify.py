@@ -1,0 +1,85 @@
+"""``tactile6d identify``: which object of a library touches the sensors, and its pose.
+
+One scene folder in the paper's triplet layout (``poses_sensors.txt`` + ``Image_heatmap_<i>.png``, as
+for ``tactile6d estimate``) against the objects given with ``--objects`` (default: every object with
+artifacts in the artifacts directory). The images are read once; every object is estimated on them
+and scored with the weights the ``calibrate_identify`` stage fitted on the validation scenes
+(``tactile6d.identifier``). Output: one line per object, most probable first, with its probability,
+score and best pose (``x y z ax ay az angle``, world frame), objects that match nothing last; then the
+time per step. ``--json``: one JSON object (``Identification.to_dict``). Errors: one ``error:`` line and
+exit status 2; objects without artifacts are all named in that one line.
+
+Config overrides (``key=value``) pass through, e.g. ``identify.screen.N=1000`` or
+``identify.weights=[1,1,10]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from tactile6d.commands.estimate import KnownObjects, is_override
+from tactile6d.config import compose_config
+from tactile6d.errors import InputError
+from tactile6d.geometry import pose_to_line
+from tactile6d.identifier import Identification, Identifier
+from tactile6d.io import read_scene_dir, read_tactile_image
+from tactile6d.optimize import use_cpu_devices_for
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="tactile6d identify", description=__doc__.split("\n")[0],
+        usage="tactile6d identify --scene DIR [--objects NAME ...] [options] [key=value ...]")
+    parser.add_argument("--scene", required=True, metavar="DIR",
+                        help="scene folder: poses_sensors.txt + Image_heatmap_<i>.png")
+    parser.add_argument("--objects", nargs="+", default=None, metavar="NAME",
+                        help="the candidate objects (default: every object with artifacts)")
+    parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--background", default=None,
+                        help="the sensor's own no-contact image (PNG, 240 x 320); default: render.background")
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
+    args = parser.parse_args(argv)
+    if args.objects:  # ``--objects A B select.N=5`` puts the override among the names
+        args.overrides = [w for w in args.objects if is_override(w)] + list(args.overrides)
+        args.objects = [w for w in args.objects if not is_override(w)]
+    return args
+
+
+def as_text(result: Identification) -> str:
+    """One line per object, most probable first, then the time per step."""
+    lines = []
+    for rank, obj in enumerate(result.objects, start=1):
+        if obj.pose is None:
+            lines.append(f"{rank:>3}. {obj.name}: no match ({obj.candidate.why})")
+        else:
+            refined = " (full estimate)" if rank == 1 and result.refined else ""
+            lines.append(f"{rank:>3}. {obj.name}: p {obj.probability:.3f}, score {obj.score:.3f}; "
+                         f"pose{refined} {pose_to_line(obj.pose)}")
+    lines.append("time: " + ", ".join(f"{k} {v:.3f} s" for k, v in result.seconds.items()))
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    cfg = compose_config(args.overrides)
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
+    known = KnownObjects(artifacts, cfg)
+    objects = args.objects if args.objects else known.with_artifacts
+    if not objects:
+        raise InputError(f"no objects to identify among: {known.listing()}")
+    for name in objects:
+        known.check(name)
+    T_world_sensors, images = read_scene_dir(args.scene)
+    background = read_tactile_image(args.background) if args.background else None
+    identifier = Identifier.from_artifacts(objects, artifacts, cfg, background=background)
+    result = identifier.identify(T_world_sensors, images)
+    print(json.dumps({"scene": str(args.scene), **result.to_dict()}) if args.json else as_text(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

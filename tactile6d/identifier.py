@@ -1,0 +1,277 @@
+"""Which object of a library touches the sensors, and in what pose: ``Identifier``.
+
+The identifier holds one ``Estimator`` per candidate object. For a scene (sensor poses and images) it
+
+1. reads the images once (``encode``): the contact patches, and the autoencoder's latents of the images
+   centred on their contacts. Only the last, cheap step of the encoding depends on the object (the
+   angle against that object's no-contact latent);
+2. estimates every object with the ``identify.screen`` settings (fewer tuples, a tighter distance
+   threshold, fewer re-scored candidates) and keeps each one's best pose's features
+   (``identification.FEATURES``); an object whose database fits no tuple of the sensors' distances does
+   not match;
+3. scores the objects with the calibrated weights and turns the scores into probabilities
+   (``identification``), best first;
+4. with ``identify.refine_best``, re-estimates the most probable object with the full settings, so
+   that its pose is the one ``Estimator.estimate`` gives.
+
+Units: metres and radians for poses; features as in ``tactile6d.identification``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tactile6d import identification, layout
+from tactile6d.config import compose_config
+from tactile6d.contacts import Contacts
+from tactile6d.errors import ArtifactError, InputError, NoMatch
+from tactile6d.estimator import Estimate, Estimator
+from tactile6d.inputs import check_images, check_sensor_poses
+from tactile6d.object_artifacts import require
+from tactile6d.settings import Settings
+from tactile6d.steps import encode as encode_step
+from tactile6d.steps import rank as rank_step
+
+
+@dataclass(frozen=True)
+class SceneEncoding:
+    """What a scene's images say, independent of the object: contacts (``Estimator.contacts``) and the
+    latents (L, latent_dim) of the images as the encoder sees them (None for the baseline)."""
+
+    contacts: Contacts
+    latents: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One library object's answer for a scene.
+
+    features (F,) (``identification.FEATURES``; NaN when it does not match); estimate: its ranked poses
+    (None when it does not match); why: the reason it does not match (None when it does).
+    """
+
+    name: str
+    features: np.ndarray
+    estimate: Estimate | None
+    why: str | None = None
+
+    @property
+    def matched(self) -> bool:
+        return self.estimate is not None
+
+
+@dataclass(frozen=True)
+class RankedObject:
+    """One object in an identification: probability (0-1), score (calibrated, lower is better, inf when
+    it does not match), its candidate (features, best poses)."""
+
+    name: str
+    probability: float
+    score: float
+    candidate: Candidate
+
+    @property
+    def pose(self) -> np.ndarray | None:
+        """Its best ``T_world_object`` (4, 4), None when it does not match."""
+        return None if self.candidate.estimate is None else self.candidate.estimate.best
+
+
+@dataclass(frozen=True)
+class Identification:
+    """The library's objects ranked, most probable first; ``best`` is the first. refined: whether the
+    best object's estimate was redone with the full settings. seconds: encode, objects (the pass over
+    the library), refine and total."""
+
+    objects: tuple[RankedObject, ...]
+    refined: bool
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def best(self) -> RankedObject:
+        return self.objects[0]
+
+    def to_dict(self) -> dict:
+        """JSON-ready: objects with probability, score, features and best pose (4x4 nested lists)."""
+        return {
+            "objects": [
+                {
+                    "name": o.name,
+                    "probability": o.probability,
+                    "score": o.score if np.isfinite(o.score) else None,
+                    "features": dict(zip(identification.FEATURES,
+                                         [None if np.isnan(v) else float(v) for v in o.candidate.features])),
+                    "pose": None if o.pose is None else o.pose.tolist(),
+                    "no_match": o.candidate.why,
+                }
+                for o in self.objects
+            ],
+            "refined": self.refined,
+            "seconds": dict(self.seconds),
+        }
+
+
+def screen_settings(settings: Settings, screen: Mapping) -> Settings:
+    """The settings of the pass over the library: ``settings`` with ``identify.screen``'s N,
+    delta_d_max and candidates."""
+    return dataclasses.replace(
+        settings,
+        select=dataclasses.replace(settings.select, N=int(screen["N"]), delta_d_max=float(screen["delta_d_max"])),
+        rank=dataclasses.replace(settings.rank, candidates=int(screen["candidates"])),
+    )
+
+
+def load_weights(artifacts_dir: str | Path) -> np.ndarray:
+    """The calibrated feature weights (F,) (stage calibrate_identify)."""
+    path = require(layout.identify_calibration_file(artifacts_dir), "calibrate_identify")
+    data = json.loads(path.read_text())
+    if list(data.get("features", [])) != list(identification.FEATURES):
+        raise ArtifactError(f"{path}: weights for features {data.get('features')}, expected "
+                            f"{list(identification.FEATURES)}; re-run `dvc repro calibrate_identify`")
+    return np.asarray(data["weights"], dtype=np.float64)
+
+
+class Identifier:
+    """Identification over a library of objects (module docstring).
+
+    estimators: name -> that object's ``Estimator`` with the full settings, all with the same settings,
+    the same no-contact image and (method 'ours') encoders that encode alike
+    (``LatentAngleEncoder.encodes_like``; ``from_artifacts``'s do); weights (F,): the calibrated feature
+    weights (None: only ``candidates`` can be called, which is how they are calibrated); screen: the
+    ``identify.screen`` section; refine_best: as ``identify.refine_best``.
+    """
+
+    def __init__(self, estimators: Mapping[str, Estimator], weights: np.ndarray | None = None,
+                 screen: Mapping | None = None, refine_best: bool = True):
+        if len(estimators) < 1:
+            raise InputError("an identifier needs at least one object")
+        self.names = list(estimators)
+        self.full = dict(estimators)
+        first = self.full[self.names[0]]
+        self.settings = first.settings
+        for name, est in self.full.items():
+            if est.settings != self.settings:
+                raise InputError(f"object {name!r} has other settings than {self.names[0]!r}")
+            if (est.no_contact is None) != (first.no_contact is None) or (
+                    est.no_contact is not None and not np.array_equal(est.no_contact, first.no_contact)):
+                raise InputError(f"object {name!r} has another no-contact image than {self.names[0]!r}")
+            if est.encoder is not None and not first.encoder.encodes_like(est.encoder):
+                raise InputError(f"object {name!r} encodes images with another autoencoder than {self.names[0]!r}")
+        self.screened = ({n: e.with_settings(screen_settings(self.settings, screen)) for n, e in self.full.items()}
+                         if screen is not None else dict(self.full))
+        self.weights = None if weights is None else np.asarray(weights, dtype=np.float64)
+        if self.weights is not None and self.weights.shape != (len(identification.FEATURES),):
+            raise InputError(f"need {len(identification.FEATURES)} weights ({', '.join(identification.FEATURES)}), "
+                             f"got shape {self.weights.shape}")
+        self.refine_best = bool(refine_best)
+
+    @classmethod
+    def from_artifacts(
+        cls,
+        objects: Sequence[str],
+        artifacts_dir: str | Path,
+        cfg: Mapping | None = None,
+        data_dir: str | Path | None = None,
+        background: np.ndarray | None = None,
+        calibrated: bool = True,
+    ) -> Identifier:
+        """Load every object's artifacts (``Estimator.from_artifacts``); objects that cannot be loaded
+        are named together in one error. cfg: the composed config (default: conf/); weights: cfg's
+        ``identify.weights``, else the calibrate_identify stage's (``calibrated=False``: none, for
+        calibrating)."""
+        cfg = cfg if cfg is not None else compose_config()
+        if len(objects) == 0:
+            raise InputError("no objects to identify among")
+        estimators, failed = {}, []
+        for name in dict.fromkeys(objects):
+            try:
+                estimators[name] = Estimator.from_artifacts(name, artifacts_dir, cfg, data_dir, background)
+            except ArtifactError as exc:
+                failed.append(f"{name} ({exc})")
+        if failed:
+            raise ArtifactError(f"{len(failed)} of {len(set(objects))} objects cannot be identified, their artifacts "
+                                f"are missing: " + "; ".join(failed))
+        first = estimators[next(iter(estimators))]
+        for est in estimators.values():  # one network for all, as the encoding is shared
+            if est.encoder is not None and first.encoder.encodes_like(est.encoder):
+                est.encoder.model = first.encoder.model
+        section = cfg["identify"]
+        weights = None
+        if section.get("weights") is not None:
+            weights = np.asarray(list(section["weights"]), dtype=np.float64)
+        elif calibrated:
+            weights = load_weights(artifacts_dir)
+        return cls(estimators, weights, section["screen"], bool(section["refine_best"]))
+
+    def encode(self, T_world_sensors, images=None) -> SceneEncoding:
+        """Read the scene's images once: contacts and latents (module docstring, step 1)."""
+        first = self.full[self.names[0]]
+        T = check_sensor_poses(T_world_sensors)
+        ours = self.settings.select.method == "ours"
+        if ours or images is not None:
+            images = check_images(images, T.shape[0])
+        contacts = first.contacts(T, images)
+        if not ours:
+            return SceneEncoding(contacts, None)
+        seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, first.no_contact)
+        return SceneEncoding(contacts, first.encoder.latents(seen))
+
+    def candidate(self, name: str, T_world_sensors, encoding: SceneEncoding, full: bool = False) -> Candidate:
+        """One object's estimate and features for an encoded scene (``screen`` settings unless ``full``)."""
+        est = (self.full if full else self.screened)[name]
+        angles = None if encoding.latents is None else np.asarray(est.encoder.angles(encoding.latents), np.float64)
+        try:
+            estimate = est.estimate_encoded(T_world_sensors, encoding.contacts, angles)
+        except NoMatch as exc:
+            return Candidate(name, np.full(len(identification.FEATURES), np.nan), None, str(exc))
+        return Candidate(name, self.features(est, T_world_sensors, estimate), estimate)
+
+    def features(self, est: Estimator, T_world_sensors, estimate: Estimate) -> np.ndarray:
+        """(F,) features of an estimate's best pose (``identification.FEATURES``)."""
+        agreement = 0.0
+        if est.mesh is not None and estimate.contacts.observed:
+            agreement = float(rank_step.agreement_cost(est.mesh, estimate.best[None], check_sensor_poses(T_world_sensors),
+                                                       estimate.contacts, est.settings.rank)[0])
+        return np.array([1e3 * estimate.losses[0], 1e3 * estimate.penetrations[0].max(), agreement])
+
+    def candidates(self, T_world_sensors, images=None) -> tuple[list[Candidate], SceneEncoding]:
+        """Every object's screened candidate (steps 1-2), in library order, and the scene's encoding."""
+        encoding = self.encode(T_world_sensors, images)
+        return [self.candidate(n, T_world_sensors, encoding) for n in self.names], encoding
+
+    def identify(self, T_world_sensors, images=None) -> Identification:
+        """The library's objects ranked by calibrated probability for sensors at T_world_sensors (L, 4, 4)
+        with images (L, 320, 240, 3) uint8 RGB (required by method 'ours')."""
+        if self.weights is None:
+            raise InputError("this identifier has no calibrated weights (set identify.weights or run "
+                             "`dvc repro calibrate_identify`)")
+        start = time.perf_counter()
+        t0 = time.perf_counter()
+        encoding = self.encode(T_world_sensors, images)
+        seconds = {"encode": time.perf_counter() - t0}
+        t0 = time.perf_counter()
+        found = [self.candidate(n, T_world_sensors, encoding) for n in self.names]
+        seconds["objects"] = time.perf_counter() - t0
+        scores = identification.features_to_scores(np.stack([c.features for c in found]), self.weights)
+        probabilities = identification.scores_to_probabilities(scores)
+        order = np.lexsort((np.arange(len(found)), -probabilities))
+        t0 = time.perf_counter()
+        refined = False
+        best = found[order[0]]
+        if self.refine_best and best.matched:
+            # The full settings search at least as wide as the screen's, so the object matches again. Its
+            # features and probability stay the screen's: they are what the weights were calibrated on.
+            full = self.candidate(best.name, T_world_sensors, encoding, full=True)
+            if full.matched:
+                found[order[0]] = dataclasses.replace(best, estimate=full.estimate)
+                refined = True
+        seconds["refine"] = time.perf_counter() - t0
+        seconds["total"] = time.perf_counter() - start
+        ranked = tuple(RankedObject(found[i].name, float(probabilities[i]), float(scores[i]), found[i]) for i in order)
+        return Identification(ranked, refined, seconds)

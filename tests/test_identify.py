@@ -1,0 +1,187 @@
+"""Identification: the calibrated score (against a plain reference), an identifier that tells a box from
+a box of another size, bad libraries, and the ``tactile6d identify`` command's errors."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from tactile6d import geometry as g
+from tactile6d import identification
+from tactile6d.cli import main as cli_main
+from tactile6d.config import compose_config
+from tactile6d.errors import ArtifactError, InputError
+from tactile6d.estimator import Estimator
+from tactile6d.identifier import Identifier
+from tactile6d.sensor import sensor_poses_touching
+from tactile6d.settings import Settings
+from tactile6d.surface import sample_surface_even
+
+T_TRUE = g.make_pose(g.rotvec_to_rotmat(np.array([0.4, 0.9, -0.3])), [0.05, -0.02, 0.15])
+
+
+# ---- the calibrated score -------------------------------------------------------------------------
+
+def probabilities_by_hand(scores):
+    """softmax(-s) written out, objects with an infinite score left out."""
+    out = np.zeros(len(scores))
+    finite = [i for i, s in enumerate(scores) if np.isfinite(s)]
+    total = sum(np.exp(-scores[i]) for i in finite)
+    for i in finite:
+        out[i] = np.exp(-scores[i]) / total
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_probabilities_match_the_softmax_written_out(seed):
+    rng = np.random.default_rng(seed)
+    scores = rng.uniform(0, 20, 7)
+    scores[rng.integers(7)] = np.inf
+    np.testing.assert_allclose(identification.scores_to_probabilities(scores), probabilities_by_hand(scores),
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_large_scores_do_not_underflow_and_nothing_matched_gives_zeros():
+    p = identification.scores_to_probabilities(np.array([1000.0, 1001.0, np.inf]))
+    np.testing.assert_allclose(p, [1 / (1 + np.exp(-1)), np.exp(-1) / (1 + np.exp(-1)), 0.0])
+    assert identification.scores_to_probabilities(np.full(3, np.inf)).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_a_feature_row_with_nan_scores_infinite():
+    f = np.array([[1.0, 2.0, 0.5], [np.nan, np.nan, np.nan]])
+    s = identification.features_to_scores(f, np.array([1.0, 0.5, 2.0]))
+    assert s[0] == pytest.approx(3.0) and s[1] == np.inf
+
+
+def test_fitted_weights_recover_those_that_drew_the_labels():
+    """Scenes whose true object is drawn from the conditional logit with known weights: the fit finds
+    them back (within the sampling error of 3000 scenes)."""
+    rng = np.random.default_rng(1)
+    true_w = np.array([2.0, 0.5, 1.0])
+    features = rng.uniform(0, 3, (3000, 6, 3))
+    p = identification.scores_to_probabilities(identification.features_to_scores(features, true_w))
+    truth = np.array([rng.choice(6, p=row) for row in p])
+    w = identification.fit_weights(features, truth, l2=0.0)
+    np.testing.assert_allclose(w, true_w, rtol=0.15)
+    assert identification.negative_log_likelihood(w, features, truth) <= \
+        identification.negative_log_likelihood(true_w, features, truth) + 1e-9
+
+
+def test_fit_needs_labelled_scenes_of_the_right_shape():
+    with pytest.raises(InputError, match="need features"):
+        identification.fit_weights(np.zeros((4, 1, 3)), np.zeros(4, int))
+    with pytest.raises(InputError, match="indices"):
+        identification.fit_weights(np.zeros((4, 3, 3)), np.full(4, 3))
+
+
+# ---- an identifier over two boxes of different widths -------------------------------------------
+
+def box(width: float) -> trimesh.Trimesh:
+    return trimesh.creation.box(extents=[width, 0.06, 0.16])
+
+
+class FaceAngleEncoder:
+    """Stands in for the autoencoder: the 'latent' of a sensor's image is the angle of the face it
+    touches, the same on both boxes (look-alikes to touch); ``identify`` encodes through it once."""
+
+    def __init__(self, angles):
+        self.true_angles = np.asarray(angles, dtype=float)
+        self.calls = 0
+
+    def latents(self, images):
+        self.calls += 1
+        return self.true_angles[: len(images), None]
+
+    def angles(self, latents):
+        return latents[:, 0]
+
+    def __call__(self, images):
+        return self.angles(self.latents(images))
+
+    def encodes_like(self, other):
+        return True
+
+
+def face_angles(normals):
+    """0.1 rad per face direction (+x, -x, +y, -y, +z, -z), the same for any box."""
+    axis = np.abs(normals).argmax(axis=1)
+    sign = np.sign(normals[np.arange(len(normals)), axis]) < 0
+    return 0.1 * (2 * axis + sign)
+
+
+def box_estimator(width, encoder, settings):
+    mesh = box(width)
+    points, normals, _ = sample_surface_even(mesh, 900, np.random.default_rng(0))
+    return Estimator(points, [mesh.vertices], face_angles(normals), encoder, settings, normals, mesh)
+
+
+@pytest.fixture(scope="module")
+def squeezed():
+    """Two sensors squeeze the 10 cm box across its width (+x and -x faces), a third touches -z."""
+    mesh = box(0.10)
+    points, normals, _ = sample_surface_even(mesh, 900, np.random.default_rng(0))
+    targets = np.array([[0.05, 0.01, 0.02], [-0.05, -0.01, 0.03], [0.01, 0.0, -0.08]])
+    idx = np.array([np.argmin(np.linalg.norm(points - t, axis=1)) for t in targets])
+    T_object_sensors = sensor_poses_touching(points[idx], normals[idx], [0.2, -1.0, 2.0], 0.002)
+    return T_TRUE @ T_object_sensors, face_angles(normals[idx])
+
+
+def landmark_settings(**overrides):
+    base = {"select.contacts": "landmark", "rank.agreement_weight": 0.0, **overrides}
+    return Settings.from_cfg(compose_config([f"{k}={v}" for k, v in base.items()]))
+
+
+SCREEN = {"N": 500, "delta_d_max": 0.01, "candidates": 10}
+
+
+@pytest.mark.parametrize("method", ["ours", "baseline"])
+def test_the_box_of_the_right_width_wins_over_wider_and_narrower_ones(squeezed, method):
+    T_sensors, angles = squeezed
+    encoder = FaceAngleEncoder(angles)
+    settings = landmark_settings(**{"select.method": method})
+    library = {f"box_{round(w * 1000)}mm": box_estimator(w, encoder if method == "ours" else None, settings)
+               for w in (0.09, 0.10, 0.115)}
+    identifier = Identifier(library, weights=np.array([1.0, 1.0, 1.0]), screen=SCREEN)
+    images = np.zeros((3, 320, 240, 3), np.uint8)
+    result = identifier.identify(T_sensors, images)
+    assert result.best.name == "box_100mm"
+    assert result.best.probability > 0.9
+    assert sum(o.probability for o in result.objects) == pytest.approx(1.0)
+    assert result.refined  # the winner's pose is the full estimate's
+    position_error = np.linalg.norm(result.best.pose[:3, 3] - T_TRUE[:3, 3])
+    assert position_error < 0.005
+    if method == "ours":
+        assert encoder.calls == 1  # the images were encoded once for the three objects
+
+
+def test_an_identifier_without_weights_only_screens(squeezed):
+    T_sensors, _ = squeezed
+    settings = landmark_settings(**{"select.method": "baseline"})
+    identifier = Identifier({"a": box_estimator(0.10, None, settings)}, screen=SCREEN)
+    found, _ = identifier.candidates(T_sensors)
+    assert found[0].matched and found[0].features.shape == (len(identification.FEATURES),)
+    with pytest.raises(InputError, match="calibrated weights"):
+        identifier.identify(T_sensors)
+
+
+def test_objects_with_other_settings_cannot_share_an_identifier():
+    a = box_estimator(0.10, None, landmark_settings(**{"select.method": "baseline"}))
+    b = box_estimator(0.10, None, landmark_settings(**{"select.method": "baseline", "select.N": 100}))
+    with pytest.raises(InputError, match="other settings"):
+        Identifier({"a": a, "b": b})
+
+
+def test_objects_without_artifacts_are_named_in_one_error(tmp_path):
+    with pytest.raises(ArtifactError) as info:
+        Identifier.from_artifacts(["002_master_chef_can", "no_such_thing"], tmp_path)
+    message = str(info.value)
+    assert "2 of 2 objects" in message and "002_master_chef_can" in message and "no_such_thing" in message
+    assert "dvc repro" in message
+
+
+def test_the_command_names_unknown_objects_and_missing_scenes(tmp_path, capsys):
+    assert cli_main(["identify", "--scene", str(tmp_path), "--objects", "no_such_thing",
+                     "--artifacts", str(tmp_path)]) == 2
+    assert "unknown object 'no_such_thing'" in capsys.readouterr().err
+    assert cli_main(["identify", "--scene", str(tmp_path / "missing"), "--objects", "002_master_chef_can",
+                     "--artifacts", str(tmp_path)]) == 2
+    assert "error:" in capsys.readouterr().err
