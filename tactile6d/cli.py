@@ -17,6 +17,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("fidelity",): ("fidelity", "compare the simulator with the paper's 120 TACTO images (IoU, correlation, montage)"),
     ("bench", "render"): ("bench_render", "images per second of the DIGIT simulator"),
     ("bench", "estimate"): ("bench_estimate", "seconds per estimate (default, baseline, faithful) and peak memory"),
+    ("bench", "identify"): ("bench_identify", "seconds per identification of the paper's triplets against the object library"),
     ("bench", "batch"): ("bench_batch", "start-up and per-scene seconds of one `estimate` call on the paper's triplets"),
     ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
     ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),

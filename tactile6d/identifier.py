@@ -149,6 +149,10 @@ class Identifier:
 
     def __init__(self, estimators: Mapping[str, Estimator], weights: np.ndarray | None = None,
                  screen: Mapping | None = None, refine_best: bool = True):
+        # Worker processes for the screen (``from_artifacts`` with identify.workers > 1): each loads the
+        # library itself, since estimators (Embree scenes, fcl objects) do not travel between processes.
+        self._worker_args: tuple | None = None
+        self._pool = None
         if len(estimators) < 1:
             raise InputError("an identifier needs at least one object")
         self.names = list(estimators)
@@ -207,7 +211,11 @@ class Identifier:
             weights = np.asarray(list(section["weights"]), dtype=np.float64)
         elif calibrated:
             weights = load_weights(artifacts_dir)
-        return cls(estimators, weights, section["screen"], bool(section["refine_best"]))
+        identifier = cls(estimators, weights, section["screen"], bool(section["refine_best"]))
+        if int(section.get("workers", 1)) > 1:
+            identifier._worker_args = (int(section["workers"]), list(estimators), str(artifacts_dir), cfg,
+                                       None if data_dir is None else str(data_dir), background)
+        return identifier
 
     def encode(self, T_world_sensors, images=None) -> SceneEncoding:
         """Read the scene's images once: contacts and latents (module docstring, step 1)."""
@@ -240,10 +248,35 @@ class Identifier:
                                                        estimate.contacts, est.settings.rank)[0])
         return np.array([1e3 * estimate.losses[0], 1e3 * estimate.penetrations[0].max(), agreement])
 
+    def screen(self, T_world_sensors, encoding: SceneEncoding) -> list[Candidate]:
+        """Every object's screened candidate, in library order: in this process, or spread over
+        ``identify.workers`` processes (started on first use; the same results, see the tests)."""
+        T = check_sensor_poses(T_world_sensors)
+        if self._worker_args is None:
+            return [self.candidate(n, T, encoding) for n in self.names]
+        if self._pool is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            workers, *load = self._worker_args
+            # spawn, not fork: a forked child would inherit the parent's torch and Embree thread pools half-made
+            self._pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_start_worker, initargs=tuple(load))
+        # Longest first would balance better, but which object is slow depends on the scene; one object
+        # per task lets a free worker take the next.
+        return list(self._pool.map(_screen_in_worker, self.names, [T] * len(self.names),
+                                   [encoding] * len(self.names)))
+
+    def close(self) -> None:
+        """Stop the worker processes, if any were started (they also stop when the program ends)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
     def candidates(self, T_world_sensors, images=None) -> tuple[list[Candidate], SceneEncoding]:
         """Every object's screened candidate (steps 1-2), in library order, and the scene's encoding."""
         encoding = self.encode(T_world_sensors, images)
-        return [self.candidate(n, T_world_sensors, encoding) for n in self.names], encoding
+        return self.screen(T_world_sensors, encoding), encoding
 
     def identify(self, T_world_sensors, images=None) -> Identification:
         """The library's objects ranked by calibrated probability for sensors at T_world_sensors (L, 4, 4)
@@ -256,7 +289,7 @@ class Identifier:
         encoding = self.encode(T_world_sensors, images)
         seconds = {"encode": time.perf_counter() - t0}
         t0 = time.perf_counter()
-        found = [self.candidate(n, T_world_sensors, encoding) for n in self.names]
+        found = self.screen(T_world_sensors, encoding)
         seconds["objects"] = time.perf_counter() - t0
         scores = identification.features_to_scores(np.stack([c.features for c in found]), self.weights)
         probabilities = identification.scores_to_probabilities(scores)
@@ -275,3 +308,22 @@ class Identifier:
         seconds["total"] = time.perf_counter() - start
         ranked = tuple(RankedObject(found[i].name, float(probabilities[i]), float(scores[i]), found[i]) for i in order)
         return Identification(ranked, refined, seconds)
+
+
+_WORKER: Identifier | None = None
+
+
+def _start_worker(objects, artifacts_dir, cfg, data_dir, background) -> None:
+    """A worker process's start: load the library once, with one worker (no pools within pools)."""
+    global _WORKER
+    from omegaconf import OmegaConf
+
+    from tactile6d.optimize import use_cpu_devices_for
+
+    use_cpu_devices_for(str(cfg["optimize"]["solver"]), int(cfg["optimize"]["cpu_devices"]))
+    cfg = OmegaConf.merge(cfg, {"identify": {"workers": 1}})
+    _WORKER = Identifier.from_artifacts(objects, artifacts_dir, cfg, data_dir, background, calibrated=False)
+
+
+def _screen_in_worker(name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:
+    return _WORKER.candidate(name, T_world_sensors, encoding)

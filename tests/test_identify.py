@@ -185,3 +185,52 @@ def test_the_command_names_unknown_objects_and_missing_scenes(tmp_path, capsys):
     assert cli_main(["identify", "--scene", str(tmp_path / "missing"), "--objects", "002_master_chef_can",
                      "--artifacts", str(tmp_path)]) == 2
     assert "error:" in capsys.readouterr().err
+
+
+# ---- from artifacts, in this process and in worker processes -----------------------------------
+
+@pytest.fixture(scope="module")
+def prim_artifacts(tmp_path_factory):
+    """prim_box's and prim_cylinder's object.h5 and surface.h5, made by the stages' own main()."""
+    from stages import prepare_object, sample_surface
+
+    root = tmp_path_factory.mktemp("artifacts")
+    for name in ("prim_box", "prim_cylinder"):
+        common = ["--object", name, f"paths.artifacts_dir={root}"]
+        assert prepare_object.main(common + ["prepare.collision=hull", "prepare.n_metric_points=200"]) == 0
+        assert sample_surface.main(common + ["sample.M=500"]) == 0
+    return root
+
+
+def test_worker_processes_give_the_same_identification(prim_artifacts):
+    """identify.workers=2 screens the objects in two spawned processes: the same candidates as one process."""
+    from tactile6d import layout
+    from tactile6d.io import read_artifact
+
+    surface = read_artifact(layout.surface_file(prim_artifacts, "prim_box"), "surface")
+    points, normals = surface["points"], surface["normals"]
+    picks = [int(np.argmin(np.linalg.norm(points - t, axis=1) + 10 * np.linalg.norm(normals - n, axis=1)))
+             for t, n in [((0.05, 0.01, 0.0), (1, 0, 0)), ((0.0, -0.03, 0.01), (0, -1, 0)),
+                          ((0.02, 0.0, 0.02), (0, 0, 1))]]
+    T_sensors = T_TRUE @ sensor_poses_touching(points[picks], normals[picks], [0.1, 1.0, -2.0], 0.002)
+    results = {}
+    for workers in (1, 2):
+        cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", f"identify.workers={workers}"])
+        identifier = Identifier.from_artifacts(["prim_box", "prim_cylinder"], prim_artifacts, cfg)
+        try:
+            results[workers] = identifier.identify(T_sensors)
+        finally:
+            identifier.close()
+    one, two = results[1], results[2]
+    assert one.best.name == "prim_box"
+    assert [o.name for o in one.objects] == [o.name for o in two.objects]
+    for a, b in zip(one.objects, two.objects):
+        np.testing.assert_array_equal(a.candidate.features, b.candidate.features)
+        assert a.probability == b.probability
+        np.testing.assert_array_equal(a.pose, b.pose)
+
+
+def test_bench_identify_without_artifacts_names_what_is_missing(tmp_path, capsys):
+    assert cli_main(["bench", "identify", "--artifacts", str(tmp_path), "--object", "004_sugar_box"]) == 2
+    err = capsys.readouterr().err
+    assert "004_sugar_box" in err and "dvc repro" in err

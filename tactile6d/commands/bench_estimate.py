@@ -68,13 +68,6 @@ def time_configuration(estimators: dict[str, Estimator], scenes: list) -> dict[s
     return seconds
 
 
-def with_settings(estimator: Estimator, settings: Settings) -> Estimator:
-    """The same object's arrays with other settings (no reloading)."""
-    return Estimator(estimator.points, estimator.penetration_model.pieces, estimator.db_angles, estimator.encoder,
-                     settings, estimator.normals, estimator.surface, estimator.no_contact, estimator.patch_model,
-                     estimator.mesh)
-
-
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tactile6d bench estimate", description=__doc__.split("\n")[0])
     parser.add_argument("--object", action="append", default=None, help="object to include (repeatable; default: all)")
@@ -122,7 +115,7 @@ def main(argv: list[str]) -> int:
             skipped[name] = "--faithful-scenes 0"
             continue
         t0 = time.perf_counter()
-        seconds = time_configuration({o: with_settings(e, settings) for o, e in estimators.items()}, chosen)
+        seconds = time_configuration({o: e.with_settings(settings) for o, e in estimators.items()}, chosen)
         medians = {step: float(np.median(v)) for step, v in seconds.items()}
         results[name] = {"median_s": medians["total"], "steps_median_s": medians, "n_scenes": len(chosen),
                          "method": settings.select.method, "solver": settings.optimize.solver}
