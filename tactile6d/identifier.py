@@ -200,7 +200,7 @@ class Identifier:
                 failed.append(f"{name} ({exc})")
         if failed:
             raise ArtifactError(f"{len(failed)} of {len(set(objects))} objects cannot be identified, their artifacts "
-                                f"are missing: " + "; ".join(failed))
+                                f"are missing or unreadable: " + "; ".join(failed))
         first = estimators[next(iter(estimators))]
         for est in estimators.values():  # one network for all, as the encoding is shared
             if est.encoder is not None and first.encoder.encodes_like(est.encoder):

@@ -202,6 +202,7 @@ def prim_artifacts(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow  # spawns two processes that import the library
 def test_worker_processes_give_the_same_identification(prim_artifacts):
     """identify.workers=2 screens the objects in two spawned processes: the same candidates as one process."""
     from tactile6d import layout
