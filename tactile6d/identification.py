@@ -87,3 +87,15 @@ def fit_weights(features: np.ndarray, truth: np.ndarray, l2: float = 1e-3) -> np
 
     result = minimize(objective, np.ones(n), method="L-BFGS-B", bounds=[(0.0, None)] * n)
     return np.asarray(result.x, dtype=np.float64)
+
+
+def confusion_matrix(truth: np.ndarray, predicted: np.ndarray, n_objects: int) -> np.ndarray:
+    """(O, O) int counts: row = true object, column = the object identified first, over S scenes
+    (truth, predicted (S,) indices in [0, O))."""
+    truth, predicted = np.asarray(truth, dtype=np.int64), np.asarray(predicted, dtype=np.int64)
+    if truth.shape != predicted.shape or (truth.size and (min(truth.min(), predicted.min()) < 0
+                                                          or max(truth.max(), predicted.max()) >= n_objects)):
+        raise InputError(f"need truth and predicted indices of one shape in [0, {n_objects})")
+    matrix = np.zeros((n_objects, n_objects), dtype=np.int64)
+    np.add.at(matrix, (truth, predicted), 1)
+    return matrix

@@ -119,3 +119,20 @@ def sensor_count_figure(results: dict, title: str):
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def confusion_figure(matrix: np.ndarray, names: list[str], title: str):
+    """Identification counts (O, O), row = true object, column = identified first; the diagonal is right."""
+    matrix = np.asarray(matrix)
+    fig, ax = plt.subplots(figsize=(1.0 + 0.55 * len(names), 0.8 + 0.5 * len(names)))
+    ax.imshow(matrix, cmap="Blues", vmin=0)
+    for (i, j), v in np.ndenumerate(matrix):
+        if v:
+            ax.text(j, i, str(v), ha="center", va="center", color="white" if v > matrix.max() / 2 else "black")
+    ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=8)
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    ax.set_xlabel("identified first")
+    ax.set_ylabel("true object")
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig

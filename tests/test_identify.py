@@ -235,3 +235,18 @@ def test_bench_identify_without_artifacts_names_what_is_missing(tmp_path, capsys
     assert cli_main(["bench", "identify", "--artifacts", str(tmp_path), "--object", "004_sugar_box"]) == 2
     err = capsys.readouterr().err
     assert "004_sugar_box" in err and "dvc repro" in err
+
+
+def test_confusion_matrix_counts_by_hand():
+    m = identification.confusion_matrix(np.array([0, 0, 1, 2, 2, 2]), np.array([0, 1, 1, 2, 2, 0]), 3)
+    assert m.tolist() == [[1, 1, 0], [0, 1, 0], [1, 0, 2]]
+    with pytest.raises(InputError):
+        identification.confusion_matrix(np.array([0, 3]), np.array([0, 0]), 3)
+
+
+def test_the_confusion_figure_draws_one_cell_per_pair():
+    from tactile6d import viz
+
+    fig = viz.confusion_figure(np.array([[3, 1], [0, 4]]), ["box", "can"], "test")
+    assert fig.axes[0].images[0].get_array().shape == (2, 2)
+    assert sorted(t.get_text() for t in fig.axes[0].texts) == ["1", "3", "4"]

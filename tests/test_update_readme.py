@@ -21,6 +21,10 @@ PAGE = """Generated on a day.
 
 ![x](figures/x.png)
 
+### Which object: identification over the library
+
+| e |
+
 ### Ablation: each switch, L = 1, 2, 3 sensors
 
 | d |
@@ -30,7 +34,7 @@ PAGE = """Generated on a day.
 def test_the_readme_gets_the_headline_sections_and_a_link_to_the_rest():
     body = update_readme.headline(PAGE)
     assert body.startswith("Generated on a day.")
-    assert "| a | b |" in body and "](reports/figures/x.png)" in body
+    assert "| a | b |" in body and "](reports/figures/x.png)" in body and "| e |" in body
     assert "| c |" not in body and "| d |" not in body
     assert "on [reports/results.md](reports/results.md): Per object, Ablation." in body
     assert body.index("The paper's 40") < body.index("Off-axis")
