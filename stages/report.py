@@ -131,7 +131,7 @@ IDENTIFY_SETS = {"caddeo2023": "the paper's 40 triplets", "validation": "validat
                  "offaxis": "off-axis scenes"}
 
 
-def identification_section(artifacts: str, figures: Path) -> list[str]:
+def identification_section(artifacts: str, figures: Path, workers: int) -> list[str]:
     """The identification table over the scene sets and a confusion figure per set (stage identify)."""
     rows, images = [], []
     for scene_set, title in IDENTIFY_SETS.items():
@@ -151,7 +151,8 @@ def identification_section(artifacts: str, figures: Path) -> list[str]:
         ("Each scene identified against the whole library (the objects of `objects.names`) without being told "
          "its object (`tactile6d.identifier`; weights fitted on the validation scenes by stage "
          "`calibrate_identify`). Pose figures: the best pose of the scenes identified correctly. Seconds: median "
-         "per identification with `identify.workers` processes, in the pipeline."),
+         f"per identification, {workers} worker process{'es' if workers > 1 else ''} (`identify.workers`), in the "
+         "pipeline; `tactile6d bench identify` measures it alone (docs/identification.md)."),
         "",
         "| scene set | scenes | top-1 (%) | top-3 (%) | positional error #1 (cm) | ADI-AUC #1 (%) | s per identification |",
         "|---|---|---|---|---|---|---|",
@@ -216,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "### Which object: identification over the library",
         "",
-        *identification_section(artifacts, figures),
+        *identification_section(artifacts, figures, int(cfg.identify.workers)),
         "### Sensor count (caddeo2023)",
         "",
         "![sensor count](figures/sensor_count.png)" if sensor_count else "(not run)",
