@@ -202,18 +202,26 @@ def prim_artifacts(tmp_path_factory):
     return root
 
 
-@pytest.mark.slow  # spawns two processes that import the library
-def test_worker_processes_give_the_same_identification(prim_artifacts):
-    """identify.workers=2 screens the objects in two spawned processes: the same candidates as one process."""
+def touching_sensors(artifacts, name, wanted):
+    """Sensors at T_TRUE touching ``name``'s database points nearest the (point, normal) pairs ``wanted``."""
     from tactile6d import layout
     from tactile6d.io import read_artifact
 
-    surface = read_artifact(layout.surface_file(prim_artifacts, "prim_box"), "surface")
+    surface = read_artifact(layout.surface_file(artifacts, name), "surface")
     points, normals = surface["points"], surface["normals"]
     picks = [int(np.argmin(np.linalg.norm(points - t, axis=1) + 10 * np.linalg.norm(normals - n, axis=1)))
-             for t, n in [((0.05, 0.01, 0.0), (1, 0, 0)), ((0.0, -0.03, 0.01), (0, -1, 0)),
-                          ((0.02, 0.0, 0.02), (0, 0, 1))]]
-    T_sensors = T_TRUE @ sensor_poses_touching(points[picks], normals[picks], [0.1, 1.0, -2.0], 0.002)
+             for t, n in wanted]
+    return T_TRUE @ sensor_poses_touching(points[picks], normals[picks], [0.1, 1.0, -2.0], 0.002)
+
+
+# Three faces of prim_box, as (point, outward normal) near which the sensors touch.
+BOX_TOUCHES = [((0.05, 0.01, 0.0), (1, 0, 0)), ((0.0, -0.03, 0.01), (0, -1, 0)), ((0.02, 0.0, 0.02), (0, 0, 1))]
+
+
+@pytest.mark.slow  # spawns two processes that import the library
+def test_worker_processes_give_the_same_identification(prim_artifacts):
+    """identify.workers=2 screens the objects in two spawned processes: the same candidates as one process."""
+    T_sensors = touching_sensors(prim_artifacts, "prim_box", BOX_TOUCHES)
     results = {}
     for workers in (1, 2):
         cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", f"identify.workers={workers}"])
@@ -250,3 +258,33 @@ def test_the_confusion_figure_draws_one_cell_per_pair():
     fig = viz.confusion_figure(np.array([[3, 1], [0, 4]]), ["box", "can"], "test")
     assert fig.axes[0].images[0].get_array().shape == (2, 2)
     assert sorted(t.get_text() for t in fig.axes[0].texts) == ["1", "3", "4"]
+
+
+@pytest.mark.slow  # identifies two scenes against two objects through the stage
+def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifacts):
+    import json
+
+    from stages import identify as identify_stage
+    from tactile6d import layout
+    from tactile6d.io import write_artifact
+    from tactile6d.scenes import SceneSet
+
+    box = touching_sensors(prim_artifacts, "prim_box", BOX_TOUCHES)
+    cylinder = touching_sensors(prim_artifacts, "prim_cylinder", [((0.03, 0.0, 0.0), (1, 0, 0)),
+                                                                   ((-0.02, 0.02, 0.02), (-0.7, 0.7, 0)),
+                                                                   ((0.0, 0.0, 0.05), (0, 0, 1))])
+    scenes = SceneSet(
+        names=np.array(["box", "cylinder"]), objects=np.array(["prim_box", "prim_cylinder"]),
+        T_world_object=np.stack([T_TRUE, T_TRUE]), T_world_sensors=np.stack([box, cylinder]),
+        images=np.zeros((2, 3, 320, 240, 3), np.uint8), contact_points=np.zeros((2, 3, 3)),
+        contact_normals=np.zeros((2, 3, 3)), contact_types=np.zeros((2, 3), dtype=np.int64),
+    )
+    write_artifact(layout.scenes_file(prim_artifacts, "tiny"), "scenes", scenes.as_datasets())
+    assert identify_stage.main(["--scene-set", "tiny", f"paths.artifacts_dir={prim_artifacts}",
+                                "objects.names=[prim_box,prim_cylinder]", "select.method=baseline",
+                                "identify.weights=[1,1,1]"]) == 0
+    metrics = json.loads(layout.metrics_file(prim_artifacts, "identify_tiny").read_text())
+    assert metrics["n_scenes"] == 2 and metrics["objects"] == ["prim_box", "prim_cylinder"]
+    assert metrics["confusion"] == [[1, 0], [0, 1]]
+    assert metrics["top1"] == 1.0 and metrics["top1_by_object"] == {"prim_box": 1.0, "prim_cylinder": 1.0}
+    assert metrics["pose_of_correct"]["pos_err_cm_top1"] < 1.0
