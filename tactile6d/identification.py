@@ -14,8 +14,8 @@ An object is scored ``s = w . f`` and the library's objects are turned into prob
 conditional logit, ``p_o = exp(-s_o) / sum_k exp(-s_k)`` over the objects that matched at all (an object
 whose database fits no tuple of the sensors' distances gets p = 0). The weights ``w`` (F,) >= 0 are
 fitted by maximum likelihood on scenes whose object is known (``fit_weights``): validation scenes
-only, never the test set. Fitted weights make scores comparable across objects and across scenes: a
-probability of 0.9 means the same thing whatever the objects.
+only, never the test set. Fitted weights put the features on one scale, so that scores are comparable
+across objects and scenes, and the probabilities are confidences fitted to those labelled scenes.
 """
 
 from __future__ import annotations
