@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import identification, layout
+from tactile6d import evaluation, identification, layout
 from tactile6d.config import compose_config
 from tactile6d.contacts import Contacts
 from tactile6d.errors import ArtifactError, InputError, NoMatch
@@ -230,12 +230,11 @@ class Identifier:
         seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, first.no_contact)
         return SceneEncoding(contacts, first.encoder.latents(seen))
 
-    def candidate(self, name: str, T_world_sensors, encoding: SceneEncoding, full: bool = False) -> Candidate:
-        """One object's estimate and features for an encoded scene (``screen`` settings unless ``full``)."""
-        est = (self.full if full else self.screened)[name]
-        angles = None if encoding.latents is None else np.asarray(est.encoder.angles(encoding.latents), np.float64)
+    def candidate(self, name: str, T_world_sensors, encoding: SceneEncoding) -> Candidate:
+        """One object's screened estimate and features for an encoded scene."""
+        est = self.screened[name]
         try:
-            estimate = est.estimate_encoded(T_world_sensors, encoding.contacts, angles)
+            estimate = _estimate_encoded(est, T_world_sensors, encoding)
         except NoMatch as exc:
             return Candidate(name, np.full(len(identification.FEATURES), np.nan), None, str(exc))
         return Candidate(name, self.features(est, T_world_sensors, estimate), estimate)
@@ -300,14 +299,80 @@ class Identifier:
         if self.refine_best and best.matched:
             # The full settings search at least as wide as the screen's, so the object matches again. Its
             # features and probability stay the screen's: they are what the weights were calibrated on.
-            full = self.candidate(best.name, T_world_sensors, encoding, full=True)
-            if full.matched:
-                found[order[0]] = dataclasses.replace(best, estimate=full.estimate)
+            try:
+                estimate = _estimate_encoded(self.full[best.name], T_world_sensors, encoding)
+            except NoMatch:
+                pass  # the screen's estimate stands
+            else:
+                found[order[0]] = dataclasses.replace(best, estimate=estimate)
                 refined = True
         seconds["refine"] = time.perf_counter() - t0
         seconds["total"] = time.perf_counter() - start
         ranked = tuple(RankedObject(found[i].name, float(probabilities[i]), float(scores[i]), found[i]) for i in order)
         return Identification(ranked, refined, seconds)
+
+
+POSE_KEYS = ("pos_err_cm_top1", "adi_auc_paper_top1", "adi_auc_rot_top1")
+
+
+def identify_scene_set(identifier: Identifier, scenes: Mapping[str, np.ndarray],
+                       references: Mapping[str, evaluation.ObjectReference], desc: str = "identify") -> dict:
+    """Identify every scene of a scene set (the ``scenes`` artifact's arrays) against the identifier's
+    library, without telling it the object, and summarise (the identify stage's metrics):
+
+    ``top1``, ``top3`` (shares of scenes whose true object came first / in the first three),
+    ``top1_by_object``, ``confusion`` (``identification.confusion_matrix`` over the library's order),
+    ``time_s_median`` and ``time_s_p90`` (seconds per identification), and ``pose_of_correct``: the
+    ``POSE_KEYS`` of ``evaluation.summarise_by_object`` over the scenes identified correctly (best
+    poses, scored against references: name -> ``evaluation.ObjectReference``). A progress bar on stderr.
+    """
+    from tqdm import tqdm
+
+    objects = identifier.names
+    truth, predicted, ranks, seconds, owners = [], [], [], [], []
+    errors = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok")}
+    for s in tqdm(range(len(scenes["names"])), desc=desc, unit="scene"):
+        name = str(scenes["objects"][s])
+        T_sensors = scenes["T_world_sensors"][s]
+        result = identifier.identify(T_sensors, scenes["images"][s])
+        order = [o.name for o in result.objects]
+        truth.append(objects.index(name))
+        predicted.append(objects.index(order[0]))
+        ranks.append(order.index(name))
+        seconds.append(result.seconds["total"])
+        if order[0] == name:
+            poses = result.best.candidate.estimate.poses
+            scored = evaluation.scene_errors(poses, len(poses), scenes["T_world_object"][s], T_sensors,
+                                             references[name].points, references[name].surface,
+                                             tree=references[name].tree)
+            for key in errors:
+                errors[key].append(scored[key])
+            owners.append(name)
+    ranks = np.array(ranks)
+    truth, predicted = np.array(truth, dtype=np.int64), np.array(predicted, dtype=np.int64)
+    pose = {}
+    if owners:
+        average = evaluation.summarise_by_object({k: np.array(v) for k, v in errors.items()}, np.array(owners))
+        pose = {k: v for k, v in average["average"].items() if k in POSE_KEYS}
+    nan = float("nan")
+    return {
+        "objects": list(objects),
+        "n_scenes": int(len(ranks)),
+        "top1": float(np.mean(ranks == 0)) if len(ranks) else nan,
+        "top3": float(np.mean(ranks < 3)) if len(ranks) else nan,
+        "top1_by_object": {o: float(np.mean(predicted[truth == i] == i)) for i, o in enumerate(objects)
+                           if np.any(truth == i)},
+        "confusion": identification.confusion_matrix(truth, predicted, len(objects)).tolist(),
+        "time_s_median": float(np.median(seconds)) if seconds else nan,
+        "time_s_p90": float(np.percentile(seconds, 90)) if seconds else nan,
+        "pose_of_correct": pose,
+    }
+
+
+def _estimate_encoded(est: Estimator, T_world_sensors, encoding: SceneEncoding) -> Estimate:
+    """``est``'s estimate from a scene's shared encoding (its own angles from the shared latents)."""
+    angles = None if encoding.latents is None else np.asarray(est.encoder.angles(encoding.latents), np.float64)
+    return est.estimate_encoded(T_world_sensors, encoding.contacts, angles)
 
 
 _WORKER: Identifier | None = None
