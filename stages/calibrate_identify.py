@@ -1,6 +1,7 @@
 """Stage calibrate_identify: the identification score's weights, fitted on the validation scenes.
 
-Every validation scene is screened against every object of ``objects.names`` (``Identifier.candidates``:
+Every validation scene is screened against every object of the library, ``objects.names`` and
+``identify.distractors`` (``Identifier.candidates``:
 the images read once, each object estimated with ``identify.screen``), and the weights of the
 conditional logit over the best poses' features are fitted by maximum likelihood
 (``identification.fit_weights``). Validation only: the test set never enters the calibration. Writes
@@ -33,12 +34,13 @@ def main(argv: list[str] | None = None) -> int:
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = cfg.paths.artifacts_dir
     objects = [str(o) for o in cfg.objects.names]
-    identifier = Identifier.from_artifacts(objects, artifacts, cfg, calibrated=False)
+    distractors = [str(o) for o in cfg.identify.distractors]
+    identifier = Identifier.from_artifacts(objects, artifacts, cfg, calibrated=False, distractors=distractors)
     scenes = read_artifact(layout.scenes_file(artifacts, SCENE_SET), "scenes")
     truth = np.array([objects.index(str(o)) for o in scenes["objects"]])
     t0 = time.perf_counter()
     features = []
-    for s in tqdm(range(len(truth)), desc=f"screening {SCENE_SET} x {len(objects)} objects", unit="scene"):
+    for s in tqdm(range(len(truth)), desc=f"screening {SCENE_SET} x {len(identifier.names)} objects", unit="scene"):
         found, _ = identifier.candidates(scenes["T_world_sensors"][s], scenes["images"][s])
         features.append(np.stack([c.features for c in found]))
     features = np.stack(features)
@@ -48,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     out = {
         "features": list(identification.FEATURES),
         "weights": weights.tolist(),
-        "objects": objects,
+        "objects": identifier.names,
         "scene_set": SCENE_SET,
         "n_scenes": int(len(truth)),
         "top1_on_calibration_scenes": float(np.mean(rank_of_truth == 0)),

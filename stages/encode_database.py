@@ -1,6 +1,7 @@
 """Stage encode_database: autoencoder latents of an object's database images and their latent angles.
 
 Reads ``artifacts/databases/<name>.h5`` and ``artifacts/ae/model.pt``. Writes ``artifacts/latents/<name>.h5``
+(with ``--distractor``: the database and latents under ``artifacts/distractors/``)
 (schema ``latents``): ``latents`` (M, 128), ``latent_nc`` (128,) of the no-contact image, and ``angles``
 (M,) = arccos(cos_sim(h, h_nc)) in radians, the angle tactile selection compares (docs/design.md, The method).
 """
@@ -19,9 +20,9 @@ from tactile6d.io import read_artifact, write_artifact
 
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
-    artifacts = cfg.paths.artifacts_dir
+    artifacts = args.objects_dir
     db = read_artifact(layout.database_file(artifacts, args.object), "database")
-    model, norm, ae_cfg = autoencoder.load_checkpoint(layout.ae_checkpoint(artifacts))
+    model, norm, ae_cfg = autoencoder.load_checkpoint(layout.ae_checkpoint(cfg.paths.artifacts_dir))
     start = time.perf_counter()
     background = db["background"]
     latents = autoencoder.encode(model, norm, StoredImages(db), background)

@@ -1,4 +1,4 @@
-"""Stage identify: which object, on a scene set, against the whole library (``objects.names``).
+"""Stage identify: which object, on a scene set, against the whole library (``objects.names`` and ``identify.distractors``).
 
 Each scene of the set is identified (``tactile6d.identifier``, the weights of stage calibrate_identify)
 without being told its object. Writes ``artifacts/metrics/identify_<set>.json``
@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     objects = [str(o) for o in cfg.objects.names]
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
-    identifier = Identifier.from_artifacts(objects, artifacts, cfg)
+    identifier = Identifier.from_artifacts(objects, artifacts, cfg, distractors=list(cfg.identify.distractors))
     references = {o: evaluation.load_object_reference(artifacts, o) for o in objects}
     try:
         out = {"scene_set": args.scene_set,

@@ -1,8 +1,9 @@
 """Stage prepare_object: clean an object's mesh, build its collision geometry and metric points.
 
 Reads: the object's mesh (data directory, or a built-in primitive), config sections ``prepare`` and
-``paths``. Writes ``artifacts/objects/<name>/object.h5`` and ``collision.json`` (how well the collision
-pieces cover the object).
+``paths``. Writes ``artifacts/objects/<name>.h5`` and ``artifacts/metrics/collision/<name>.json`` (how
+well the collision pieces cover the object); with ``--distractor`` (a distractor of the identification
+library) both under ``artifacts/distractors/`` instead.
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         f"excess {fidelity['excess']:.3f}, missing {fidelity['missing']:.3f} of the volume"
     )
 
-    artifacts = cfg.paths.artifacts_dir
+    artifacts = args.objects_dir
     write_artifact(
         layout.object_file(artifacts, name),
         "object",

@@ -31,7 +31,7 @@ from tactile6d.sensor import sensor_poses_touching
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
     start = time.perf_counter()
-    artifacts = cfg.paths.artifacts_dir
+    artifacts = args.objects_dir
     name = args.object
     surface = read_artifact(layout.surface_file(artifacts, name), "surface")
     obj = read_artifact(layout.object_file(artifacts, name), "object")

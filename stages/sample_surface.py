@@ -1,7 +1,7 @@
 """Stage sample_surface: M points spread evenly over an object's surface, with outward normals.
 
-Reads ``artifacts/objects/<name>/object.h5`` and config section ``sample``; writes
-``artifacts/objects/<name>/surface.h5``.
+Reads ``artifacts/objects/<name>.h5`` and config section ``sample``; writes
+``artifacts/surfaces/<name>.h5`` (with ``--distractor``: both under ``artifacts/distractors/``).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
     if int(cfg.sample.M) < 1 or int(cfg.sample.oversample) < 1:
         raise ConfigError(f"sample.M and sample.oversample must be positive, got {cfg.sample.M}, {cfg.sample.oversample}")
-    artifacts = cfg.paths.artifacts_dir
+    artifacts = args.objects_dir
     obj = read_artifact(layout.object_file(artifacts, args.object), "object")
     mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
 

@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from tactile6d.errors import ConfigError
+from tactile6d.layout import distractors_dir
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
@@ -103,9 +104,11 @@ def section_to_dict(cfg: DictConfig, key: str) -> dict:
 def parse_stage_args(argv: list[str] | None, description: str, per_object: bool = False, add_arguments=None):
     """Common command line of ``python -m stages.<name>``.
 
-    ``[--params params.yaml] [--object NAME] key=value ...``: without ``--params`` the config is
-    composed from ``conf/`` (so group overrides work), with it the composed file is read.
-    ``add_arguments(parser)`` may add a stage's own flags. Returns ``(args, cfg)``.
+    ``[--params params.yaml] [--object NAME [--distractor]] key=value ...``: without ``--params`` the
+    config is composed from ``conf/`` (so group overrides work), with it the composed file is read.
+    ``add_arguments(parser)`` may add a stage's own flags. Returns ``(args, cfg)``; a per-object stage's
+    ``args.objects_dir`` is where that object's artifacts live: ``paths.artifacts_dir``, or for a
+    distractor of the identification library ``layout.distractors_dir`` of it.
     """
     import argparse
 
@@ -113,11 +116,18 @@ def parse_stage_args(argv: list[str] | None, description: str, per_object: bool 
     parser.add_argument("--params", help="composed params file (DVC passes params.yaml); default: compose conf/")
     if per_object:
         parser.add_argument("--object", required=True, help="object name (see conf/objects/)")
+        parser.add_argument("--distractor", action="store_true",
+                            help="a distractor of the identification library (identify.distractors): its "
+                                 "artifacts live under <artifacts>/distractors/")
     if add_arguments is not None:
         add_arguments(parser)
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
-    return args, load_config(args.overrides, args.params)
+    cfg = load_config(args.overrides, args.params)
+    if per_object:
+        artifacts = cfg.paths.artifacts_dir
+        args.objects_dir = distractors_dir(artifacts) if args.distractor else Path(artifacts)
+    return args, cfg
 
 
 def composed_params_yaml(conf_dir: Path | str = CONF_DIR) -> str:

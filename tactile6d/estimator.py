@@ -167,11 +167,14 @@ class Estimator:
         cfg: Mapping | None = None,
         data_dir: str | Path | None = None,
         background: np.ndarray | None = None,
+        objects_dir: str | Path | None = None,
     ) -> Estimator:
         """Load one object's artifacts: object.h5 (collision pieces, mesh), surface.h5 (points) and, for
         method 'ours', latents.h5 (angles), the autoencoder checkpoint and the patch calibration. cfg: the composed config
         (default: conf/ with no overrides). ArtifactError names a missing file and the command that
-        makes it.
+        makes it. objects_dir: where the object's own artifacts live, if not in artifacts_dir (an
+        identification library's distractors: ``layout.distractors_dir(artifacts_dir)``); the
+        autoencoder and the patch calibration always come from artifacts_dir.
 
         background: the no-contact image (320, 240, 3) uint8 RGB of the sensor whose images will be
         estimated; the encoder and the contact patches see each image minus it. Pass your own sensor's when it is not the
@@ -180,11 +183,12 @@ class Estimator:
         """
         cfg = cfg if cfg is not None else _default_cfg()
         settings = Settings.from_cfg(cfg)
-        points = load_surface_points(artifacts_dir, object_name)
-        pieces = rank_step.load_pieces(artifacts_dir, object_name)
+        own = artifacts_dir if objects_dir is None else objects_dir
+        points = load_surface_points(own, object_name)
+        pieces = rank_step.load_pieces(own, object_name)
         db_angles = encoder = patch_model = None
         if settings.select.method == "ours":
-            db_angles, latent_nc = encode_step.load_database_angles(artifacts_dir, object_name)
+            db_angles, latent_nc = encode_step.load_database_angles(own, object_name)
             if background is None:
                 background = encode_step.load_background(cfg, data_dir)
             background = check_images(np.asarray(background)[None], 1)[0]
@@ -193,8 +197,8 @@ class Estimator:
             )
             if settings.select.reads_patches:
                 patch_model = encode_step.load_patch_model(artifacts_dir)
-        normals = load_surface_normals(artifacts_dir, object_name) if needs_normals(settings) else None
-        mesh = rank_step.load_mesh(artifacts_dir, object_name) if settings.rank.rescores else None
+        normals = load_surface_normals(own, object_name) if needs_normals(settings) else None
+        mesh = rank_step.load_mesh(own, object_name) if settings.rank.rescores else None
         surface = sample_surface(mesh) if settings.rank.refine else None
         return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh)
 

@@ -184,22 +184,29 @@ class Identifier:
         data_dir: str | Path | None = None,
         background: np.ndarray | None = None,
         calibrated: bool = True,
+        distractors: Sequence[str] = (),
     ) -> Identifier:
         """Load every object's artifacts (``Estimator.from_artifacts``); objects that cannot be loaded
-        are named together in one error. cfg: the composed config (default: conf/); weights: cfg's
-        ``identify.weights``, else the calibrate_identify stage's (``calibrated=False``: none, for
-        calibrating)."""
+        are named together in one error. The library is ``objects`` (artifacts in artifacts_dir), then
+        ``distractors`` (artifacts in ``layout.distractors_dir(artifacts_dir)``, see ``identify.distractors``).
+        cfg: the composed config (default: conf/); weights: cfg's ``identify.weights``, else the
+        calibrate_identify stage's (``calibrated=False``: none, for calibrating)."""
         cfg = cfg if cfg is not None else compose_config()
-        if len(objects) == 0:
+        both = set(objects) & set(distractors)
+        if both:
+            raise InputError(f"{', '.join(sorted(both))} cannot be both a library object and a distractor")
+        library = {**{name: None for name in objects}, **{name: layout.distractors_dir(artifacts_dir)
+                                                          for name in distractors}}
+        if len(library) == 0:
             raise InputError("no objects to identify among")
         estimators, failed = {}, []
-        for name in dict.fromkeys(objects):
+        for name, objects_dir in library.items():
             try:
-                estimators[name] = Estimator.from_artifacts(name, artifacts_dir, cfg, data_dir, background)
+                estimators[name] = Estimator.from_artifacts(name, artifacts_dir, cfg, data_dir, background, objects_dir)
             except ArtifactError as exc:
                 failed.append(f"{name} ({exc})")
         if failed:
-            raise ArtifactError(f"{len(failed)} of {len(set(objects))} objects cannot be identified, their artifacts "
+            raise ArtifactError(f"{len(failed)} of {len(library)} objects cannot be identified, their artifacts "
                                 f"are missing or unreadable: " + "; ".join(failed))
         first = estimators[next(iter(estimators))]
         for est in estimators.values():  # one network for all, as the encoding is shared
@@ -213,8 +220,8 @@ class Identifier:
             weights = load_weights(artifacts_dir)
         identifier = cls(estimators, weights, section["screen"], bool(section["refine_best"]))
         if int(section.get("workers", 1)) > 1:
-            identifier._worker_args = (int(section["workers"]), list(estimators), str(artifacts_dir), cfg,
-                                       None if data_dir is None else str(data_dir), background)
+            identifier._worker_args = (int(section["workers"]), list(objects), str(artifacts_dir), cfg,
+                                       None if data_dir is None else str(data_dir), background, list(distractors))
         return identifier
 
     def encode(self, T_world_sensors, images=None) -> SceneEncoding:
@@ -378,7 +385,7 @@ def _estimate_encoded(est: Estimator, T_world_sensors, encoding: SceneEncoding) 
 _WORKER: Identifier | None = None
 
 
-def _start_worker(objects, artifacts_dir, cfg, data_dir, background) -> None:
+def _start_worker(objects, artifacts_dir, cfg, data_dir, background, distractors) -> None:
     """A worker process's start: load the library once, with one worker (no pools within pools)."""
     global _WORKER
     from omegaconf import OmegaConf
@@ -387,7 +394,8 @@ def _start_worker(objects, artifacts_dir, cfg, data_dir, background) -> None:
 
     use_cpu_devices_for(str(cfg["optimize"]["solver"]), int(cfg["optimize"]["cpu_devices"]))
     cfg = OmegaConf.merge(cfg, {"identify": {"workers": 1}})
-    _WORKER = Identifier.from_artifacts(objects, artifacts_dir, cfg, data_dir, background, calibrated=False)
+    _WORKER = Identifier.from_artifacts(objects, artifacts_dir, cfg, data_dir, background, calibrated=False,
+                                        distractors=distractors)
 
 
 def _screen_in_worker(name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:

@@ -9,6 +9,13 @@ from pathlib import Path
 # that needs one kind for every object can depend on exactly that folder in dvc.yaml.
 
 
+def distractors_dir(artifacts_dir: str | Path) -> Path:
+    """Where the identification library's distractors keep their per-object artifacts: the same layout
+    (``objects/``, ``surfaces/``, ``databases/``, ``latents/``) one level down, so that adding distractors
+    leaves the folders the evaluation stages depend on untouched (stages run with ``--distractor``)."""
+    return Path(artifacts_dir) / "distractors"
+
+
 def object_file(artifacts_dir: str | Path, name: str) -> Path:
     """Cleaned mesh, collision pieces, metric points (stage prepare_object)."""
     return Path(artifacts_dir) / "objects" / f"{name}.h5"

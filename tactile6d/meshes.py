@@ -113,17 +113,76 @@ def _primitives() -> dict:
 
 PRIMITIVE_NAMES = tuple(_primitives())
 
+# Procedural shapes ``shape_<k>`` (k = 0, 1, 2, ...): distractors of YCB-like size for identification over a
+# library (docs/identification.md). Shape k is drawn from a generator seeded with k alone, so a library
+# of any size is reproducible and adding shapes leaves the others as they were.
+PROCEDURAL_PREFIX = "shape_"
+PROCEDURAL_KINDS = ("box", "rounded_box", "cylinder", "capsule", "ellipsoid", "prism", "superquadric")
+# Extents (metres) like the YCB objects': the longest side 6-22 cm (a tuna can's 8.5 cm to a bleach
+# bottle's 25 cm), the others shorter by up to these ratios, none under 2 cm (a marker is 1.8 cm thick).
+_LONGEST_RANGE, _RATIO_RANGE, _MIN_SIDE = (0.06, 0.22), (0.35, 1.0), 0.02
+
+
+def is_procedural(name: str) -> bool:
+    """True for ``shape_<k>``, k a non-negative integer written without leading zeros."""
+    index = name[len(PROCEDURAL_PREFIX):]
+    return name.startswith(PROCEDURAL_PREFIX) and index.isdigit() and str(int(index)) == index
+
 
 def is_primitive(name: str) -> bool:
-    return name in PRIMITIVE_NAMES
+    """True for the objects made in code: the built-in primitives and the procedural shapes."""
+    return name in PRIMITIVE_NAMES or is_procedural(name)
+
+
+def procedural_shape(index: int) -> tuple[str, np.ndarray, trimesh.Trimesh]:
+    """Procedural shape number ``index`` -> (kind, extents (3,) metres, mesh centred at its origin).
+
+    The kind is one of ``PROCEDURAL_KINDS`` (uniformly), the extents sorted longest first along x, y, z.
+    A rounded box's radius is 3-10 mm (at most a third of its shortest side), a prism has 3 to 8 sides,
+    a superquadric's exponents are 0.3-1.5 (from box-like to pinched).
+    """
+    rng = np.random.default_rng(index)
+    kind = PROCEDURAL_KINDS[rng.integers(len(PROCEDURAL_KINDS))]
+    longest = rng.uniform(*_LONGEST_RANGE)
+    middle = max(longest * rng.uniform(*_RATIO_RANGE), _MIN_SIDE)
+    shortest = max(middle * rng.uniform(*_RATIO_RANGE), _MIN_SIDE)
+    x, y, z = longest, middle, shortest
+    if kind == "box":
+        mesh = trimesh.creation.box(extents=(x, y, z))
+    elif kind == "rounded_box":
+        mesh = _rounded_box((x, y, z), min(rng.uniform(0.003, 0.010), z / 3))
+    elif kind in ("cylinder", "prism", "capsule"):
+        # Round (or polygonal) cross-section of the two shorter sides' mean diameter, axis along x.
+        radius = (y + z) / 4
+        y = z = 2 * radius
+        if kind == "capsule":
+            mesh = trimesh.creation.capsule(height=x - 2 * radius, radius=radius, count=(48, 48))
+        else:
+            sections = 96 if kind == "cylinder" else int(rng.integers(3, 9))
+            mesh = trimesh.creation.cylinder(radius=radius, height=x, sections=sections)
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+        x, y, z = np.ptp(mesh.vertices, axis=0)  # a polygon's width across flats is under its diameter
+    elif kind == "ellipsoid":
+        mesh = trimesh.creation.icosphere(subdivisions=5)
+        mesh.apply_scale((x / 2, y / 2, z / 2))
+    else:
+        from tactile6d.superquadrics import Superquadric, superquadric_mesh
+
+        e1, e2 = rng.uniform(0.3, 1.5, size=2)
+        mesh = superquadric_mesh(Superquadric(x / 2, y / 2, z / 2, float(e1), float(e2)), max_edge=0.004, max_turn=0.1)
+    return kind, np.array([x, y, z], dtype=np.float64), mesh
 
 
 def make_primitive(name: str) -> trimesh.Trimesh:
-    """A built-in object by name (``PRIMITIVE_NAMES``), centred at its origin, in metres."""
-    makers = _primitives()
-    if name not in makers:
-        raise MeshError(f"unknown primitive {name!r}; known: {', '.join(PRIMITIVE_NAMES)}")
-    mesh = makers[name]()
+    """An object made in code by name (``PRIMITIVE_NAMES`` or ``shape_<k>``), centred at its origin, in metres."""
+    if is_procedural(name):
+        mesh = procedural_shape(int(name[len(PROCEDURAL_PREFIX):]))[2]
+    else:
+        makers = _primitives()
+        if name not in makers:
+            raise MeshError(f"unknown primitive {name!r}; known: {', '.join(PRIMITIVE_NAMES)} and "
+                            f"{PROCEDURAL_PREFIX}<k> (procedural shape k = 0, 1, 2, ...)")
+        mesh = makers[name]()
     return trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=True)
 
 

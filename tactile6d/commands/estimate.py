@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile6d import layout
 from tactile6d.config import CONF_DIR, compose_config
 from tactile6d.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.estimator import Estimate, Estimator
@@ -121,15 +122,17 @@ def collect_scenes(args: argparse.Namespace) -> list[Path]:
 
 
 class KnownObjects:
-    """The object names this command accepts: those with artifacts and those of the configured sets."""
+    """The object names this command accepts: those with artifacts and those of the configured sets;
+    apart, the identification library's distractors (``identify.distractors``, or with artifacts under
+    ``layout.distractors_dir``)."""
 
     def __init__(self, artifacts: str | Path, cfg):
         self.artifacts = Path(artifacts)
-        # Any per-object artifact counts: a missing one is then reported by Estimator.from_artifacts
-        # with the dvc command that makes it.
-        self.with_artifacts = sorted({p.stem for kind in ("objects", "surfaces", "latents")
-                                      for p in (self.artifacts / kind).glob("*.h5")})
+        self.with_artifacts = objects_with_artifacts(self.artifacts)
         self.configured = configured_objects(cfg)
+        self.distractors_with_artifacts = objects_with_artifacts(layout.distractors_dir(self.artifacts))
+        self.distractors = list(dict.fromkeys([*self.distractors_with_artifacts,
+                                               *(str(n) for n in cfg.identify.distractors)]))
 
     def __contains__(self, name: str) -> bool:
         return name in self.with_artifacts or name in self.configured
@@ -144,6 +147,12 @@ class KnownObjects:
         others = ", ".join(o for o in self.configured if o not in self.with_artifacts)
         return (f"objects with artifacts in {self.artifacts}: {have}"
                 + (f"; other configured objects (conf/objects): {others}" if others else ""))
+
+
+def objects_with_artifacts(artifacts: Path) -> list[str]:
+    """Objects with any per-object artifact in ``artifacts``: a missing one is then reported by
+    Estimator.from_artifacts with the dvc command that makes it."""
+    return sorted({p.stem for kind in ("objects", "surfaces", "latents") for p in (artifacts / kind).glob("*.h5")})
 
 
 def configured_objects(cfg) -> list[str]:

@@ -2,7 +2,8 @@
 
 One scene folder in the paper's triplet layout (``poses_sensors.txt`` + ``Image_heatmap_<i>.png``, as
 for ``tactile6d estimate``) against the objects given with ``--objects`` (default: every object with
-artifacts in the artifacts directory). The images are read once; every object is estimated on them
+artifacts in the artifacts directory, and every distractor with artifacts in its ``distractors/``
+folder, ``identify.distractors``). The images are read once; every object is estimated on them
 and scored with the weights the ``calibrate_identify`` stage fitted on the validation scenes
 (``tactile6d.identifier``). Output: one line per object, most probable first, with its probability,
 score and best pose (``x y z ax ay az angle``, world frame), objects that match nothing last; then the
@@ -62,20 +63,32 @@ def as_text(result: Identification) -> str:
     return "\n".join(lines)
 
 
+def library_of(names: list[str] | None, known: KnownObjects) -> tuple[list[str], list[str]]:
+    """(objects, distractors) of the library: ``names`` split into the two (a name with artifacts in the
+    artifacts directory is an object, else one of ``known.distractors`` is a distractor; InputError
+    for an unknown name), or without names every object and distractor with artifacts."""
+    if not names:
+        objects, distractors = known.with_artifacts, known.distractors_with_artifacts
+        if not objects and not distractors:
+            raise InputError(f"no objects to identify among: {known.listing()}")
+        return list(objects), list(distractors)
+    distractors = [n for n in names if n not in known.with_artifacts and n in known.distractors]
+    for name in names:
+        if name not in distractors:
+            known.check(name)
+    return [n for n in names if n not in distractors], distractors
+
+
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     cfg = compose_config(args.overrides)
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     known = KnownObjects(artifacts, cfg)
-    objects = args.objects if args.objects else known.with_artifacts
-    if not objects:
-        raise InputError(f"no objects to identify among: {known.listing()}")
-    for name in objects:
-        known.check(name)
+    objects, distractors = library_of(args.objects, known)
     T_world_sensors, images = read_scene_dir(args.scene)
     background = read_tactile_image(args.background) if args.background else None
-    identifier = Identifier.from_artifacts(objects, artifacts, cfg, background=background)
+    identifier = Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors)
     result = identifier.identify(T_world_sensors, images)
     print(json.dumps({"scene": str(args.scene), **result.to_dict()}) if args.json else as_text(result))
     return 0
