@@ -137,7 +137,7 @@ def is_primitive(name: str) -> bool:
 def procedural_shape(index: int) -> tuple[str, np.ndarray, trimesh.Trimesh]:
     """Procedural shape number ``index`` -> (kind, extents (3,) metres, mesh centred at its origin).
 
-    The kind is one of ``PROCEDURAL_KINDS`` (uniformly), the extents sorted longest first along x, y, z.
+    The kind is one of ``PROCEDURAL_KINDS`` (uniformly); the longest side lies along x.
     A rounded box's radius is 3-10 mm (at most a third of its shortest side), a prism has 3 to 8 sides,
     a superquadric's exponents are 0.3-1.5 (from box-like to pinched).
     """
@@ -154,14 +154,12 @@ def procedural_shape(index: int) -> tuple[str, np.ndarray, trimesh.Trimesh]:
     elif kind in ("cylinder", "prism", "capsule"):
         # Round (or polygonal) cross-section of the two shorter sides' mean diameter, axis along x.
         radius = (y + z) / 4
-        y = z = 2 * radius
         if kind == "capsule":
             mesh = trimesh.creation.capsule(height=x - 2 * radius, radius=radius, count=(48, 48))
         else:
             sections = 96 if kind == "cylinder" else int(rng.integers(3, 9))
             mesh = trimesh.creation.cylinder(radius=radius, height=x, sections=sections)
         mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
-        x, y, z = np.ptp(mesh.vertices, axis=0)  # a polygon's width across flats is under its diameter
     elif kind == "ellipsoid":
         mesh = trimesh.creation.icosphere(subdivisions=5)
         mesh.apply_scale((x / 2, y / 2, z / 2))
@@ -170,7 +168,9 @@ def procedural_shape(index: int) -> tuple[str, np.ndarray, trimesh.Trimesh]:
 
         e1, e2 = rng.uniform(0.3, 1.5, size=2)
         mesh = superquadric_mesh(Superquadric(x / 2, y / 2, z / 2, float(e1), float(e2)), max_edge=0.004, max_turn=0.1)
-    return kind, np.array([x, y, z], dtype=np.float64), mesh
+    # The mesh's own extents: a polygon's width across flats and an ellipsoid's tessellation fall short
+    # of the drawn sizes by up to half of them.
+    return kind, np.ptp(np.asarray(mesh.vertices), axis=0), mesh
 
 
 def make_primitive(name: str) -> trimesh.Trimesh:
@@ -236,14 +236,22 @@ def unpack_pieces(data: dict[str, np.ndarray]) -> ConvexPieces:
     ]
 
 
+_HALF_SPACE_BLOCK = 2**22  # points x faces per half-space test (32 MB of float64)
+
+
 def points_in_convex_pieces(points: np.ndarray, pieces: ConvexPieces) -> np.ndarray:
     """(n, 3) -> (n,) bool: inside at least one convex piece (half-space test on each hull)."""
+    points = np.asarray(points, dtype=np.float64)
     inside = np.zeros(len(points), dtype=bool)
     for vertices, faces in pieces:
         hull = trimesh.Trimesh(vertices, faces, process=False)
         normals, origins = hull.face_normals, vertices[faces[:, 0]]
         offsets = np.einsum("fk,fk->f", normals, origins)
-        inside |= np.all(points @ normals.T <= offsets + 1e-9, axis=1)
+        # In chunks of points: a finely tessellated hull (a sphere's has 20 000 faces) against 200 000
+        # points would be a 30 GB matrix at once.
+        step = max(1, _HALF_SPACE_BLOCK // len(faces))
+        for a in range(0, len(points), step):
+            inside[a:a + step] |= np.all(points[a:a + step] @ normals.T <= offsets + 1e-9, axis=1)
     return inside
 
 

@@ -17,7 +17,6 @@ from tactile6d import layout
 from tactile6d.errors import ArtifactError
 from tactile6d.io import read_artifact
 
-
 # The per-object stages as dvc.yaml names them for the identification library's distractors, whose
 # artifacts live under ``layout.distractors_dir``.
 DISTRACTOR_STAGES = {"prepare_object": "prepare_distractor", "sample_surface": "sample_distractor",

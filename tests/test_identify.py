@@ -178,6 +178,17 @@ def test_objects_without_artifacts_are_named_in_one_error(tmp_path):
     assert "dvc repro" in message
 
 
+def test_a_distractor_without_artifacts_is_named_with_its_own_stage(tmp_path):
+    with pytest.raises(ArtifactError) as info:
+        Identifier.from_artifacts([], tmp_path, distractors=["shape_9"])
+    assert "1 of 1 objects" in str(info.value) and "dvc repro sample_distractor@shape_9" in str(info.value)
+
+
+def test_an_object_cannot_also_be_a_distractor(tmp_path):
+    with pytest.raises(InputError, match="prim_box cannot be both"):
+        Identifier.from_artifacts(["prim_box"], tmp_path, distractors=["prim_box", "shape_1"])
+
+
 def test_the_command_names_unknown_objects_and_missing_scenes(tmp_path, capsys):
     assert cli_main(["identify", "--scene", str(tmp_path), "--objects", "no_such_thing",
                      "--artifacts", str(tmp_path)]) == 2
@@ -191,15 +202,29 @@ def test_the_command_names_unknown_objects_and_missing_scenes(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def prim_artifacts(tmp_path_factory):
-    """prim_box's and prim_cylinder's object.h5 and surface.h5, made by the stages' own main()."""
+    """prim_box's and prim_cylinder's object.h5 and surface.h5, made by the stages' own main(), and
+    the same of the procedural distractor shape_3 (a 10 cm triangular prism) under distractors/."""
     from stages import prepare_object, sample_surface
 
     root = tmp_path_factory.mktemp("artifacts")
-    for name in ("prim_box", "prim_cylinder"):
-        common = ["--object", name, f"paths.artifacts_dir={root}"]
+    for name, flags in (("prim_box", []), ("prim_cylinder", []), ("shape_3", ["--distractor"])):
+        common = ["--object", name, *flags, f"paths.artifacts_dir={root}"]
         assert prepare_object.main(common + ["prepare.collision=hull", "prepare.n_metric_points=200"]) == 0
         assert sample_surface.main(common + ["sample.M=500"]) == 0
     return root
+
+
+def test_the_command_takes_distractors_from_their_own_folder(prim_artifacts):
+    from tactile6d.commands.estimate import KnownObjects
+    from tactile6d.commands.identify import library_of
+
+    known = KnownObjects(prim_artifacts, compose_config())
+    assert library_of(None, known) == (["prim_box", "prim_cylinder"], ["shape_3"])
+    assert library_of(["shape_3", "prim_box"], known) == (["prim_box"], ["shape_3"])
+    # a configured distractor without artifacts is one too (its load error then names its stage)
+    assert library_of(["prim_box", "shape_17"], known) == (["prim_box"], ["shape_17"])
+    with pytest.raises(InputError, match="unknown object 'shape_x'"):
+        library_of(["prim_box", "shape_x"], known)
 
 
 def touching_sensors(artifacts, name, wanted):
@@ -225,13 +250,14 @@ def test_worker_processes_give_the_same_identification(prim_artifacts):
     results = {}
     for workers in (1, 2):
         cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", f"identify.workers={workers}"])
-        identifier = Identifier.from_artifacts(["prim_box", "prim_cylinder"], prim_artifacts, cfg)
+        identifier = Identifier.from_artifacts(["prim_box", "prim_cylinder"], prim_artifacts, cfg,
+                                               distractors=["shape_3"])
         try:
             results[workers] = identifier.identify(T_sensors)
         finally:
             identifier.close()
     one, two = results[1], results[2]
-    assert one.best.name == "prim_box"
+    assert one.best.name == "prim_box" and len(one.objects) == 3
     assert [o.name for o in one.objects] == [o.name for o in two.objects]
     for a, b in zip(one.objects, two.objects):
         np.testing.assert_array_equal(a.candidate.features, b.candidate.features)
@@ -281,10 +307,10 @@ def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifa
     )
     write_artifact(layout.scenes_file(prim_artifacts, "tiny"), "scenes", scenes.as_datasets())
     assert identify_stage.main(["--scene-set", "tiny", f"paths.artifacts_dir={prim_artifacts}",
-                                "objects.names=[prim_box,prim_cylinder]", "select.method=baseline",
-                                "identify.weights=[1,1,1]"]) == 0
+                                "objects.names=[prim_box,prim_cylinder]", "identify.distractors=[shape_3]",
+                                "select.method=baseline", "identify.weights=[1,1,1]"]) == 0
     metrics = json.loads(layout.metrics_file(prim_artifacts, "identify_tiny").read_text())
-    assert metrics["n_scenes"] == 2 and metrics["objects"] == ["prim_box", "prim_cylinder"]
-    assert metrics["confusion"] == [[1, 0], [0, 1]]
+    assert metrics["n_scenes"] == 2 and metrics["objects"] == ["prim_box", "prim_cylinder", "shape_3"]
+    assert metrics["confusion"] == [[1, 0, 0], [0, 1, 0], [0, 0, 0]]
     assert metrics["top1"] == 1.0 and metrics["top1_by_object"] == {"prim_box": 1.0, "prim_cylinder": 1.0}
     assert metrics["pose_of_correct"]["pos_err_cm_top1"] < 1.0

@@ -88,3 +88,46 @@ def test_ycb_marker_is_handled(data_dir):
     assert not report["watertight"]  # non-manifold seams stay; see clean_mesh
     assert report["faces"] < report["faces_in"]  # duplicate faces were dropped
     assert 2.0e-5 < clean.volume < 3.5e-5
+
+
+# ---- procedural shapes (the identification library's distractors) ---------------------------------
+
+@pytest.mark.parametrize("name,expected", [("shape_0", True), ("shape_17", True), ("shape_017", False),
+                                           ("shape_-1", False), ("shape_", False), ("shape_1x", False),
+                                           ("prim_box", False)])
+def test_procedural_names(name, expected):
+    assert meshes.is_procedural(name) is expected
+    assert meshes.is_primitive(name) is (expected or name in meshes.PRIMITIVE_NAMES)
+
+
+def test_procedural_shapes_are_reproducible_closed_and_of_ycb_like_size():
+    kinds = set()
+    for k in range(40):
+        kind, extents, mesh = meshes.procedural_shape(k)
+        again = meshes.make_primitive(f"shape_{k}")
+        np.testing.assert_array_equal(meshes.make_primitive(f"shape_{k}").vertices, again.vertices)
+        cleaned, report = meshes.clean_mesh(again)
+        assert report["watertight"], (k, kind)
+        # the extents are those reported, longest along x, within a YCB object's range
+        np.testing.assert_allclose(cleaned.extents, extents, atol=1e-9)
+        assert 0.06 * 0.99 <= extents[0] <= 0.22 and extents[0] == extents.max() and extents.min() >= 0.015, (k, extents)
+        kinds.add(kind)
+    assert kinds == set(meshes.PROCEDURAL_KINDS)
+
+
+def test_an_unknown_name_lists_the_procedural_ones():
+    with pytest.raises(MeshError, match="shape_<k>"):
+        meshes.make_primitive("prim_teapot")
+
+
+def test_points_in_a_finely_tessellated_hull_are_tested_in_blocks(monkeypatch):
+    """A sphere's 20 480-face hull against points tested a few faces' worth at a time: the same answer
+    as the distance from the centre (the hull's inscribed and circumscribed radii bound the ambiguity)."""
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.04)
+    monkeypatch.setattr(meshes, "_HALF_SPACE_BLOCK", 3 * len(sphere.faces))  # 3 points per block
+    points = np.random.default_rng(0).uniform(-0.05, 0.05, (400, 3))
+    r = np.linalg.norm(points, axis=1)
+    inside = meshes.points_in_convex_pieces(points, [(sphere.vertices, sphere.faces)])
+    clear = np.abs(r - 0.04) > 1e-4  # the tessellation's sagitta is under 0.1 mm
+    assert clear.sum() > 350
+    np.testing.assert_array_equal(inside[clear], r[clear] < 0.04)
