@@ -147,10 +147,13 @@ def identification_section(artifacts: str, figures: Path, workers: int) -> list[
         images.append(f"![identification, {title}](figures/identify_{scene_set}.png)")
     if not rows:
         return ["(not run)", ""]
+    n_shown = len(m["top1_by_object"])  # the objects the scenes show: those of objects.names
+    library = (f"the {n_shown} objects of `objects.names` and {len(m['objects']) - n_shown} distractors (`identify.distractors`: "
+               "built-in primitives and procedural shapes; the confusion figures show those something was taken for)")
     return [
-        ("Each scene identified against the whole library (the objects of `objects.names`) without being told "
-         "its object (`tactile6d.identifier`; weights fitted on the validation scenes by stage "
-         "`calibrate_identify`). Pose figures: the best pose of the scenes identified correctly. Seconds: median "
+        ("Each scene identified against the whole library without being told its object "
+         "(`tactile6d.identifier`; weights fitted on the validation scenes by stage "
+         f"`calibrate_identify`). The library: {library}. Pose figures: the best pose of the scenes identified correctly. Seconds: median "
          f"per identification, {workers} worker process{'es' if workers > 1 else ''} (`identify.workers`), in the "
          "pipeline; `tactile6d bench identify` measures it alone (docs/identification.md)."),
         "",

@@ -122,15 +122,21 @@ def sensor_count_figure(results: dict, title: str):
 
 
 def confusion_figure(matrix: np.ndarray, names: list[str], title: str):
-    """Identification counts (O, O), row = true object, column = identified first; the diagonal is right."""
+    """Identification counts (O, O) over a library of O names, row = true object, column = identified
+    first. Drawn: the rows of the objects the scenes show, and the columns of those objects and of every
+    other object identified at least once, in library order, so that a library of distractors adds
+    only the ones something was taken for. A cell (r, c) with r and c the same object is right."""
     matrix = np.asarray(matrix)
-    fig, ax = plt.subplots(figsize=(1.0 + 0.55 * len(names), 0.8 + 0.5 * len(names)))
-    ax.imshow(matrix, cmap="Blues", vmin=0)
-    for (i, j), v in np.ndenumerate(matrix):
+    shown = matrix.sum(axis=1) > 0
+    rows, cols = np.flatnonzero(shown), np.flatnonzero(shown | (matrix.sum(axis=0) > 0))
+    part = matrix[np.ix_(rows, cols)]
+    fig, ax = plt.subplots(figsize=(1.0 + 0.55 * len(cols), 0.8 + 0.5 * len(rows)))
+    ax.imshow(part, cmap="Blues", vmin=0)
+    for (i, j), v in np.ndenumerate(part):
         if v:
-            ax.text(j, i, str(v), ha="center", va="center", color="white" if v > matrix.max() / 2 else "black")
-    ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=8)
-    ax.set_yticks(range(len(names)), names, fontsize=8)
+            ax.text(j, i, str(v), ha="center", va="center", color="white" if v > part.max() / 2 else "black")
+    ax.set_xticks(range(len(cols)), [names[c] for c in cols], rotation=60, ha="right", fontsize=8)
+    ax.set_yticks(range(len(rows)), [names[r] for r in rows], fontsize=8)
     ax.set_xlabel("identified first")
     ax.set_ylabel("true object")
     ax.set_title(title, fontsize=10)

@@ -286,6 +286,17 @@ def test_the_confusion_figure_draws_one_cell_per_pair():
     assert sorted(t.get_text() for t in fig.axes[0].texts) == ["1", "3", "4"]
 
 
+def test_the_confusion_figure_leaves_out_distractors_nothing_was_taken_for():
+    from tactile6d import viz
+
+    # library: box, can (shown in the scenes), cone (taken for the can once), ball (never involved)
+    matrix = np.array([[3, 0, 0, 0], [0, 3, 1, 0], [0, 0, 0, 0], [0, 0, 0, 0]])
+    ax = viz.confusion_figure(matrix, ["box", "can", "cone", "ball"], "test").axes[0]
+    assert ax.images[0].get_array().shape == (2, 3)
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["box", "can", "cone"]
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["box", "can"]
+
+
 @pytest.mark.slow  # identifies two scenes against two objects through the stage
 def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifacts):
     import json
