@@ -1,0 +1,273 @@
+"""Where a stage's heavy loop runs: local worker processes by default, a Dask cluster when the config names one.
+
+A stage splits its loop into independent tasks and hands them to an ``Executor``:
+``executor.map(fn, *iterables)`` calls ``fn(*args)`` for each tuple of ``zip(*iterables)`` and returns
+the results **in input order**, whichever worker finished first. DVC stays the orchestrator and the
+cache: the executor only spreads the work inside one stage, and where the work ran never changes a
+result (so config section ``executor`` is no DVC parameter of any stage).
+
+- ``LocalExecutor(workers)``: 1 runs the tasks in this process (no pool, no pickling); more start that
+  many worker processes (``concurrent.futures.ProcessPoolExecutor``, spawn context: a forked child would
+  inherit half-made torch, JAX or Embree thread pools).
+- ``DaskExecutor(address)``: the workers of a running Dask cluster (``distributed.Client(address)``, e.g.
+  ``tcp://10.0.0.5:8786``); docs/distributed.md says how to start one and what the workers need.
+- ``executor_from_config(cfg, workers)`` picks one from config section ``executor`` (conf/executor/).
+
+What a task may assume: ``fn`` and its arguments are pickled to another process (a module-level
+function of an importable module, picklable arguments; large inputs are better read by path or
+shipped once per chunk of work than once per item). ``initializer(*initargs)`` has run once in that
+process before its first task (e.g. ``optimize.use_cpu_devices``, which must precede any JAX work).
+Heavy per-process state (a loaded renderer, a library of estimators) is loaded once per process with
+``process_cache(key, factory)``, which works the same in this process, in spawn workers and in Dask
+workers. Tasks of one process never run concurrently (a Dask worker started with several threads
+still runs one task at a time): the renderer and the estimator are not thread-safe.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import hashlib
+import multiprocessing
+import pickle
+import threading
+from collections.abc import Callable, Hashable, Iterable, Mapping
+from typing import Any, TypeVar
+
+from tqdm import tqdm
+
+from tactile6d.errors import ConfigError
+
+T = TypeVar("T")
+
+# --- per-process state ---------------------------------------------------------------------------------
+
+_CACHE: dict[Hashable, Any] = {}
+_SLOTS: dict[Hashable, Hashable] = {}  # slot -> the key that holds it now
+_CACHE_LOCK = threading.RLock()
+_TASK_LOCK = threading.Lock()  # one task at a time per process (Dask workers may run several threads)
+_INITIALIZED: set[str] = set()  # tokens of the initializers that have run in this process
+
+
+def process_cache(key: Hashable, factory: Callable[[], T], slot: Hashable | None = None) -> T:
+    """The value stored under ``key`` in this process, made by ``factory()`` on first use.
+
+    A task calls it to load heavy state once per worker process, e.g.
+    ``process_cache(("library", run_token), lambda: load_library(...))``. The key must name everything
+    the value depends on (settings, paths; a token per stage run when files may change between runs
+    in one process). slot: entries that share a slot replace each other, so that a process keeps at
+    most one of them (one variant's estimators at a time): the old entry is dropped before the new one
+    is made. Thread-safe; values are shared, not copied.
+    """
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            return _CACHE[key]
+        if slot is not None and _SLOTS.get(slot, key) != key:
+            _CACHE.pop(_SLOTS.pop(slot), None)
+        value = factory()
+        _CACHE[key] = value
+        if slot is not None:
+            _SLOTS[slot] = key
+        return value
+
+
+def clear_process_cache() -> None:
+    """Forget every ``process_cache`` entry of this process (tests; freeing memory)."""
+    with _CACHE_LOCK:
+        _CACHE.clear()
+        _SLOTS.clear()
+
+
+def _initializer_token(initializer: Callable | None, initargs: tuple) -> str | None:
+    """A name for an initializer call, equal in every process: the digest of its pickle."""
+    if initializer is None:
+        return None
+    return hashlib.sha1(pickle.dumps((initializer, tuple(initargs)))).hexdigest()
+
+
+def _run_task(init: tuple[str, Callable, tuple] | None, fn: Callable, args: tuple):
+    """What a Dask worker runs for one task: the executor's initializer once per process, then ``fn(*args)``."""
+    with _TASK_LOCK:
+        if init is not None and init[0] not in _INITIALIZED:
+            init[1](*init[2])
+            _INITIALIZED.add(init[0])
+        return fn(*args)
+
+
+# --- executors ---------------------------------------------------------------------------------------------
+
+
+class Executor:
+    """Runs independent tasks and returns their results in input order; a context manager (``close``)."""
+
+    def map(self, fn: Callable[..., T], *iterables: Iterable, desc: str | None = None) -> list[T]:
+        """``[fn(*args) for args in zip(*iterables)]``, computed by the workers; with ``desc``, a tqdm bar
+        over the tasks as they finish. The first task that raises stops the map: the others are
+        cancelled and its exception (the original type, e.g. a ``Tactile6dError``) is raised here."""
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        """One line saying where the tasks run, for a stage's log."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the workers (a pool's processes, a cluster connection); the executor is unusable then."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _progress(total: int, desc: str | None) -> tqdm:
+    return tqdm(total=total, desc=desc, unit="task", disable=desc is None)
+
+
+class LocalExecutor(Executor):
+    """``workers`` processes of this machine; 1 runs every task in this process.
+
+    initializer(*initargs): run once in each worker process before its first task; with 1 worker, once
+    in this process before the first task of the first ``map``. The pool starts at the first ``map``
+    with more than one worker and is reused by later ones.
+    """
+
+    def __init__(self, workers: int, initializer: Callable | None = None, initargs: tuple = ()):
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ConfigError(f"a local executor needs a whole number of worker processes >= 1, got {workers!r}")
+        self.workers = workers
+        self.initializer, self.initargs = initializer, tuple(initargs)
+        self._pool: concurrent.futures.ProcessPoolExecutor | None = None
+        self._initialized = False
+
+    def map(self, fn, *iterables, desc=None):
+        tasks = list(zip(*iterables))
+        if self.workers == 1:
+            if self.initializer is not None and not self._initialized:
+                self.initializer(*self.initargs)
+                self._initialized = True
+            out = []
+            with _progress(len(tasks), desc) as bar:
+                for args in tasks:
+                    out.append(fn(*args))
+                    bar.update(1)
+            return out
+        if self._pool is None:
+            self._pool = concurrent.futures.ProcessPoolExecutor(
+                self.workers, mp_context=multiprocessing.get_context("spawn"),
+                initializer=self.initializer, initargs=self.initargs)
+        futures = [self._pool.submit(fn, *args) for args in tasks]
+        index = {future: i for i, future in enumerate(futures)}
+        out = [None] * len(tasks)
+        try:
+            with _progress(len(tasks), desc) as bar:
+                for future in concurrent.futures.as_completed(futures):
+                    out[index[future]] = future.result()
+                    bar.update(1)
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+        return out
+
+    def describe(self) -> str:
+        return "this process" if self.workers == 1 else f"{self.workers} local worker processes"
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+
+class DaskExecutor(Executor):
+    """The workers of a running Dask cluster, reached through its scheduler at ``address``.
+
+    address: ``tcp://host:port`` (``dask scheduler`` listens on 8786). timeout_s: how long to wait for the
+    scheduler to answer; a ConfigError naming the address when it does not. The cluster decides how
+    many tasks run at once (start its workers with ``--nthreads 1``: see the module docstring).
+
+    initializer(*initargs) runs once per worker process, before the first task of this executor that
+    the process runs: each task carries it (a few bytes) and a per-process registry skips it when it has
+    run. Unlike ``client.run`` this also covers workers that join or restart later, and unlike a
+    ``WorkerPlugin`` it leaves nothing registered on a shared scheduler after the stage.
+    Every task is submitted with ``pure=False``: equal arguments are separate tasks, never merged.
+    """
+
+    def __init__(self, address: str, initializer: Callable | None = None, initargs: tuple = (),
+                 timeout_s: float = 10.0):
+        from distributed import Client
+
+        self.address = address
+        _probe_scheduler(address, timeout_s)
+        self.client = Client(address, timeout=timeout_s, set_as_default=False)
+        token = _initializer_token(initializer, initargs)
+        self._init = None if token is None else (token, initializer, tuple(initargs))
+
+    def map(self, fn, *iterables, desc=None):
+        from distributed import as_completed
+
+        tasks = list(zip(*iterables))
+        futures = [self.client.submit(_run_task, self._init, fn, args, pure=False) for args in tasks]
+        index = {future.key: i for i, future in enumerate(futures)}
+        out = [None] * len(tasks)
+        try:
+            with _progress(len(tasks), desc) as bar:
+                for future, result in as_completed(futures, loop=self.client.loop, with_results=True):
+                    out[index[future.key]] = result
+                    bar.update(1)
+        except BaseException:
+            self.client.cancel(futures)
+            raise
+        return out
+
+    def describe(self) -> str:
+        workers = self.client.scheduler_info().get("workers", {})
+        threads = sum(int(w.get("nthreads", 0)) for w in workers.values())
+        return f"Dask cluster at {self.address}: {len(workers)} workers, {threads} threads"
+
+    def close(self) -> None:
+        self.client.close()
+
+
+def _probe_scheduler(address: str, timeout_s: float) -> None:
+    """Raise ConfigError unless a Dask scheduler answers at ``address`` within ``timeout_s`` seconds.
+
+    A separate connection, before the Client is made: a Client whose connection failed still tries to
+    close itself when collected, which blocks for twice the timeout and prints a traceback.
+    """
+    from distributed.comm import connect
+
+    async def handshake():
+        comm = await connect(address, timeout=timeout_s)
+        await comm.close()
+
+    try:
+        asyncio.run(asyncio.wait_for(handshake(), timeout_s + 1.0))
+    except Exception as exc:  # refused, timed out, a bad address, something else answering
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConfigError(
+            f"executor.address {address!r}: no Dask scheduler reached there within {timeout_s:g} s ({reason}); "
+            "start one (`dask scheduler`, docs/distributed.md) or set executor.address=null to run locally"
+        ) from None
+
+
+def executor_from_config(cfg: Mapping, workers: int, initializer: Callable | None = None,
+                         initargs: tuple = ()) -> Executor:
+    """The executor config section ``executor`` asks for (conf/executor/default.yaml).
+
+    ``executor.address`` null: ``LocalExecutor(workers)`` (the stage's own worker count, e.g.
+    ``render.workers``); a scheduler address: ``DaskExecutor`` on it, where ``workers`` is ignored (the
+    cluster decides). ConfigError for a bad value, or when the scheduler does not answer within
+    ``executor.timeout_s`` seconds.
+    """
+    section = cfg["executor"] if "executor" in cfg else {}
+    address = section.get("address")
+    timeout_s = section.get("timeout_s", 10.0)
+    if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)) or not timeout_s > 0:
+        raise ConfigError(f"executor.timeout_s must be a positive number of seconds, got {timeout_s!r}")
+    if address is None:
+        return LocalExecutor(workers, initializer, initargs)
+    if not isinstance(address, str) or not address.strip():
+        raise ConfigError(f"executor.address must be null or a Dask scheduler address such as "
+                          f"'tcp://10.0.0.5:8786', got {address!r}")
+    return DaskExecutor(address.strip(), initializer, initargs, float(timeout_s))
