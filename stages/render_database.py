@@ -8,24 +8,58 @@ the roll rule ``render.roll``), its image and contact mask stored compactly, and
 enters the sensor body there (``body_contact``; rendered anyway, as TACTO would: ``render.strict`` is
 not applied here); also the no-contact image. Randomness (rolls, noise) comes from the object's name
 (``database.object_rng``).
+
+The poses are rendered in chunks of ``CHUNK``, one executor task each (``tactile6d.executor``, config
+section ``executor``): ``render.workers`` local processes by default, a Dask cluster's workers when
+``executor.address`` names one. A task gets everything it renders from (mesh arrays, poses, renderer
+settings, background) and sends back the encoded images, so workers need no shared filesystem; the
+chunks are appended in order, so the artifact is the same byte for byte wherever they ran.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import sys
 import time
 
 import numpy as np
 import trimesh
-from tqdm import tqdm
 
 from tactile6d import database, layout
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore
-from tactile6d.errors import exit_on_error
+from tactile6d.errors import ConfigError, exit_on_error
+from tactile6d.executor import executor_from_config, process_cache
 from tactile6d.io import read_artifact, write_artifact
-from tactile6d.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
+from tactile6d.render import (
+    DigitRenderer,
+    MeshArrays,
+    add_noise,
+    load_background_bgr,
+    mesh_arrays,
+)
 from tactile6d.sensor import sensor_poses_touching
+
+# Poses per task: ~0.5 s of rendering and encoding each, so 2000 points make 63 tasks, enough to keep
+# a few dozen workers busy and to even out the load; the per-task cost (shipping the mesh and the
+# background, ~1 MB for a YCB object) stays small beside it.
+CHUNK = 32
+
+
+def render_chunk(settings: dict, background_bgr: np.ndarray, mesh: MeshArrays,
+                 T_object_sensors: np.ndarray) -> database.EncodedImages:
+    """One task: the encoded images of sensors at T_object_sensors (k, 4, 4) on ``mesh``.
+
+    settings: ``DigitRenderer.settings`` of a noise-free renderer; background_bgr (H, W, 3) uint8 as read.
+    The renderer is built once per process and kept (``process_cache``) while the settings and the
+    background stay the same.
+    """
+    key = ("render_database renderer", json.dumps(settings, sort_keys=True),
+           hashlib.sha1(np.ascontiguousarray(background_bgr).tobytes()).hexdigest())
+    renderer = process_cache(key, lambda: DigitRenderer(background_bgr, **settings, workers=1),
+                             slot="render_database renderer")
+    return database.render_encoded(renderer, mesh, T_object_sensors)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,11 +79,21 @@ def main(argv: list[str] | None = None) -> int:
     noise_seeds = rng.integers(0, 2**62, size=n + 1)  # one per image, the last for the no-contact image
     poses = sensor_poses_touching(points, normals, rolls, depths)
 
+    workers = int(cfg.render.workers)
+    if workers < 1:
+        raise ConfigError(f"render.workers must be >= 1, got {workers}")
     background = load_background_bgr(cfg, DataStore(cfg.paths))
-    with DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False) as renderer:
-        images = database.CompactImages(renderer.background)
-        with tqdm(total=n, desc=f"render_database {name}", unit="image") as bar:
-            database.render_compact(renderer, mesh_arrays(mesh), poses, images, progress=bar.update)
+    # This one only gives the settings the tasks rebuild it from and the background they encode over.
+    renderer = DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False, workers=1)
+    arrays = mesh_arrays(mesh)
+    chunks = [poses[a : a + CHUNK] for a in range(0, n, CHUNK)]
+    images = database.CompactImages(renderer.background)
+    with executor_from_config(cfg, workers) as executor:
+        print(f"{name}: {n} images in {len(chunks)} tasks on {executor.describe()}", flush=True)
+        k = len(chunks)
+        for part in executor.map(render_chunk, [renderer.settings] * k, [background] * k, [arrays] * k, chunks,
+                                 desc=f"render_database {name}"):
+            images.extend(part)
     body = database.body_contacts(mesh.vertices, poses)
     no_contact = add_noise(images.background, float(cfg.render.noise_std), int(noise_seeds[-1]))
 
