@@ -4,17 +4,24 @@ Every variant of config section ``ablation.variants`` is applied to the ``select
 ``rank`` sections (``tactile6d.variants``: method ``ours``; solver ``ablation.solver`` unless the variant
 sets its own; a variant may start from a preset's sections), and each
 scene of the set is estimated from every subset of 1, 2 and 3 of its sensors (``tactile6d.sensor_subsets``,
-as in sensor_study). Variants run in ``ablation.workers`` processes; two variants that come out as the
-same settings (e.g. the last step of the chain and ``default``) are estimated once. Reads the scenes and
-each object's artifacts; writes ``artifacts/metrics/ablation_<set>.json``: variant -> ``L1``/``L2``/``L3``
--> the evaluation's metric names, plus ``time_s_median`` (per estimate).
+as in sensor_study). Two variants that come out as the same settings (e.g. the last step of the chain
+and ``default``) are estimated once. Reads the scenes and each object's artifacts; writes
+``artifacts/metrics/ablation_<set>.json``: variant -> ``L1``/``L2``/``L3`` -> the evaluation's metric
+names, plus ``time_s_median`` (per estimate).
+
+One executor task per variant and scene (``tactile6d.executor``, config section ``executor``):
+``ablation.workers`` local processes by default, a Dask cluster's workers when ``executor.address``
+names one. A task gets its scene's arrays and reads the objects' artifacts by path (on a cluster, the
+artifacts directory must be at the same absolute path on every worker); each worker process loads a
+variant's estimators once and keeps one variant's at a time. The rows come back in scene order, so
+every figure but ``time_s_median`` is the same wherever the tasks ran.
 """
 
 from __future__ import annotations
 
-import multiprocessing
 import sys
-from concurrent.futures import ProcessPoolExecutor
+import uuid
+from pathlib import Path
 
 import numpy as np
 from omegaconf import OmegaConf
@@ -23,32 +30,41 @@ from tactile6d import evaluation, layout
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.estimator import Estimator
+from tactile6d.executor import executor_from_config, process_cache
 from tactile6d.io import read_artifact, write_json
 from tactile6d.optimize import use_cpu_devices
-from tactile6d.sensor_subsets import evaluate_sensor_count
+from tactile6d.sensor_subsets import (
+    SubsetRows,
+    score_scene_subsets,
+    summarise_subset_rows,
+)
 from tactile6d.variants import estimator_settings_key, variant_config
 
 
-def evaluate_variant(cfg_container: dict, scene_set: str, name: str, progress: bool) -> dict[str, dict[str, float]]:
-    """One variant: ``L1``, ``L2``, ... -> summary with ``time_s_median``. Reads its own inputs, so that
-    it can run in a fresh worker process."""
-    cfg = OmegaConf.create(cfg_container)
+def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.ndarray]) -> dict[int, SubsetRows]:
+    """One task: a scene estimated from every subset of 1, ..., L of its sensors with variant ``name``
+    -> L -> its rows.
+
+    run: a token of this stage run, so that a worker process that ran an earlier one reloads (the
+    artifacts may have changed); cfg_container: the variant's whole config (``variant_config``) as plain
+    containers; scene: ``object`` (str), ``T_world_object`` (4, 4), ``T_world_sensors`` (L, 4, 4),
+    ``images`` (L, 320, 240, 3) uint8. The variant's estimators (one per object, loaded when first
+    needed) and the objects' references are kept per process (``process_cache``): one variant's
+    estimators at a time, so that a process holds no more than the former one-variant-per-process did.
+    """
+    variant = process_cache(("ablation estimators", run, name), lambda: (OmegaConf.create(cfg_container), {}),
+                            slot="ablation estimators")
+    references = process_cache(("ablation references", run), dict, slot="ablation references")
+    cfg, estimators = variant
     artifacts = cfg.paths.artifacts_dir
-    scenes = read_artifact(layout.scenes_file(artifacts, scene_set), "scenes")
-    objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]
-    n_sensors = scenes["T_world_sensors"].shape[1] if objects else 0
-    references = {obj: evaluation.load_object_reference(artifacts, obj) for obj in objects}
-    estimators = {obj: Estimator.from_artifacts(obj, artifacts, cfg) for obj in objects}
-    out = {}
-    for L in range(1, n_sensors + 1):
-        summary, seconds = evaluate_sensor_count(scenes, estimators, references, L, f"{name} L={L}", progress)
-        summary["time_s_median"] = float(np.median(seconds)) if seconds else float("nan")
-        out[f"L{L}"] = summary
-        print(f"{scene_set} {name} L={L}: position {summary.get('pos_err_cm_top1', float('nan')):.2f} cm, "
-              f"rot ADI-AUC {summary.get('adi_auc_rot_top1', float('nan')):.1f} %, "
-              f"contact {summary.get('contact_acc_top1', float('nan')):.1f} %, "
-              f"{summary['time_s_median']:.2f} s per estimate", flush=True)
-    return out
+    obj = str(scene["object"])
+    if obj not in estimators:
+        estimators[obj] = Estimator.from_artifacts(obj, artifacts, cfg)
+    if obj not in references:
+        references[obj] = evaluation.load_object_reference(artifacts, obj)
+    return {L: score_scene_subsets(estimators[obj], scene["T_world_sensors"], scene["images"], scene["T_world_object"],
+                                   references[obj], L)
+            for L in range(1, len(scene["T_world_sensors"]) + 1)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -57,26 +73,50 @@ def main(argv: list[str] | None = None) -> int:
     workers = int(cfg.ablation.workers)
     if workers < 1:
         raise ConfigError(f"ablation.workers must be >= 1, got {workers}")
+    artifacts = cfg.paths.artifacts_dir
     variants = {name: variant_config(cfg, name, v) for name, v in cfg.ablation.variants.items()}
     first_with = {}  # settings key -> the first variant that has those settings
     for name, variant_cfg in variants.items():
         first_with.setdefault(estimator_settings_key(variant_cfg), name)
     unique = list(first_with.values())
 
-    jobs = [(OmegaConf.to_container(variants[n], resolve=True), args.scene_set, n) for n in unique]
-    # JAX's device count is set once per process, before any variant runs (the paper's runs the gd solver).
-    devices = (int(cfg.optimize.cpu_devices),)
-    if workers == 1 or len(jobs) == 1:
-        use_cpu_devices(*devices)
-        computed = [evaluate_variant(*job, progress=True) for job in jobs]
-    else:
-        # spawn, not fork: the parent must not hand its HDF5 handles and torch threads to the workers
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=use_cpu_devices, initargs=devices) as pool:
-            computed = list(pool.map(evaluate_variant, *zip(*jobs), [False] * len(jobs)))
-    by_name = dict(zip(unique, computed))
+    scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
+    objects = [str(o) for o in scenes["objects"]]
+    n_sensors = scenes["T_world_sensors"].shape[1] if objects else 0
+    scene_data = [{"object": obj, "T_world_object": scenes["T_world_object"][s],
+                   "T_world_sensors": scenes["T_world_sensors"][s], "images": scenes["images"][s]}
+                  for s, obj in enumerate(objects)]
+    containers = {}
+    for name in unique:
+        # An absolute artifacts path: a worker's working directory may be another one.
+        container = OmegaConf.to_container(variants[name], resolve=True)
+        container["paths"]["artifacts_dir"] = str(Path(artifacts).resolve())
+        if container["paths"]["data_dir"] is not None:
+            container["paths"]["data_dir"] = str(Path(container["paths"]["data_dir"]).expanduser().resolve())
+        containers[name] = container
+    jobs = [(name, s) for name in unique for s in range(len(objects))]  # variant-major: a worker keeps one variant's estimators
+    run = uuid.uuid4().hex
+    # JAX's device count is set once per process, before any estimate (the paper's variant runs the gd solver).
+    with executor_from_config(cfg, workers, initializer=use_cpu_devices, initargs=(int(cfg.optimize.cpu_devices),)) as ex:
+        print(f"ablation {args.scene_set}: {len(unique)} distinct variants x {len(objects)} scenes on {ex.describe()}",
+              flush=True)
+        rows = ex.map(score_scene, [run] * len(jobs), [n for n, _ in jobs], [containers[n] for n, _ in jobs],
+                      [scene_data[s] for _, s in jobs], desc=f"ablation {args.scene_set}")
+    by_job = dict(zip(jobs, rows))
+
+    by_name = {}
+    for name in unique:
+        by_name[name] = {}
+        for L in range(1, n_sensors + 1):
+            summary, seconds = summarise_subset_rows([by_job[name, s][L] for s in range(len(objects))], objects)
+            summary["time_s_median"] = float(np.median(seconds)) if seconds else float("nan")
+            by_name[name][f"L{L}"] = summary
+            print(f"{args.scene_set} {name} L={L}: position {summary.get('pos_err_cm_top1', float('nan')):.2f} cm, "
+                  f"rot ADI-AUC {summary.get('adi_auc_rot_top1', float('nan')):.1f} %, "
+                  f"contact {summary.get('contact_acc_top1', float('nan')):.1f} %, "
+                  f"{summary['time_s_median']:.2f} s per estimate", flush=True)
     results = {name: by_name[first_with[estimator_settings_key(c)]] for name, c in variants.items()}
-    write_json(layout.metrics_file(cfg.paths.artifacts_dir, f"ablation_{args.scene_set}"), results)
+    write_json(layout.metrics_file(artifacts, f"ablation_{args.scene_set}"), results)
     return 0
 
 

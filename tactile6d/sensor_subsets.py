@@ -5,14 +5,16 @@ and the triple for L = 3). Each subset is one estimate of the online estimator a
 (``evaluation.scene_errors``; contact accuracy counts the subset's sensors only); the rows of a count
 are summarised per object and averaged like Table I (``evaluation.summarise_by_object``). The
 sensor_study stage (ours vs baseline) and the ablation stage (the accuracy switches) both run this.
-``estimate_and_score`` (one estimate and its row of errors) is shared with scripts/eval_accuracy.py.
+``estimate_and_score`` (one estimate and its row of errors) is shared with scripts/eval_accuracy.py;
+``score_scene_subsets`` (one scene, every subset of a count) and ``summarise_subset_rows`` are the two
+halves of ``evaluate_sensor_count``, for callers that spread the scenes over worker processes.
 """
 
 from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -69,6 +71,48 @@ def sensor_subsets(n_sensors: int, count: int) -> list[tuple[int, ...]]:
     return list(itertools.combinations(range(n_sensors), count))
 
 
+class SubsetRows(NamedTuple):
+    """One scene estimated from every subset of ``count`` of its sensors (``sensor_subsets`` order):
+    ``errors`` keyed by ``ERROR_KEYS``, each (n_subsets, k) (``evaluation.scene_errors``' rows, stacked);
+    ``seconds`` the estimator's total seconds of each estimate that matched."""
+
+    errors: dict[str, np.ndarray]
+    seconds: list[float]
+
+
+def score_scene_subsets(
+    estimator: Estimator,
+    T_world_sensors: np.ndarray,
+    images: np.ndarray,
+    T_world_object: np.ndarray,
+    reference: evaluation.ObjectReference,
+    count: int,
+) -> SubsetRows:
+    """One scene (sensors (L, 4, 4), images (L, 320, 240, 3) uint8, true pose (4, 4)) estimated from each
+    subset of ``count`` of its L sensors by ``estimate_and_score``."""
+    rows: dict[str, list[np.ndarray]] = {key: [] for key in ERROR_KEYS}
+    seconds = []
+    for subset in sensor_subsets(len(T_world_sensors), count):
+        idx = list(subset)
+        scored = estimate_and_score(estimator, T_world_sensors[idx], images[idx], T_world_object, reference)
+        if scored.seconds is not None:
+            seconds.append(float(scored.seconds["total"]))
+        for key in ERROR_KEYS:
+            rows[key].append(scored.errors[key])
+    return SubsetRows({key: np.stack(v) for key, v in rows.items()}, seconds)
+
+
+def summarise_subset_rows(rows: Sequence[SubsetRows], objects: Sequence[str]) -> tuple[dict[str, float], list[float]]:
+    """The scenes' rows (scene s of object ``objects[s]``), in scene order -> the average row of
+    ``evaluation.summarise_by_object`` ({} for no scenes) and the seconds of every estimate, in order."""
+    if not rows:
+        return {}, []
+    arrays = {key: np.concatenate([r.errors[key] for r in rows]) for key in ERROR_KEYS}
+    owners = np.concatenate([[str(obj)] * len(r.errors[ERROR_KEYS[0]]) for r, obj in zip(rows, objects)])
+    seconds = [t for r in rows for t in r.seconds]
+    return evaluation.summarise_by_object(arrays, owners)["average"], seconds
+
+
 def evaluate_sensor_count(
     scenes: Mapping[str, np.ndarray],
     estimators: Mapping[str, Estimator],
@@ -86,22 +130,10 @@ def evaluate_sensor_count(
     estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate
     that matches nothing (``NoMatch``) counts as a failure, as in evaluate; bad input raises.
     """
-    n_scenes = len(scenes["objects"])
-    if n_scenes == 0:
-        return {}, []
-    subsets = sensor_subsets(scenes["T_world_sensors"].shape[1], count)
-    rows: dict[str, list[np.ndarray]] = {key: [] for key in ERROR_KEYS}
-    owners, seconds = [], []
-    for s in tqdm(range(n_scenes), desc=desc or f"L={count}", unit="scene", leave=False, disable=not progress):
-        obj = str(scenes["objects"][s])
-        for subset in subsets:
-            idx = list(subset)
-            scored = estimate_and_score(estimators[obj], scenes["T_world_sensors"][s][idx], scenes["images"][s][idx],
-                                        scenes["T_world_object"][s], references[obj])
-            if scored.seconds is not None:
-                seconds.append(float(scored.seconds["total"]))
-            for key in ERROR_KEYS:
-                rows[key].append(scored.errors[key])
-            owners.append(obj)
-    arrays = {key: np.stack(v) for key, v in rows.items()}
-    return evaluation.summarise_by_object(arrays, np.array(owners))["average"], seconds
+    objects = [str(o) for o in scenes["objects"]]
+    rows = [
+        score_scene_subsets(estimators[objects[s]], scenes["T_world_sensors"][s], scenes["images"][s],
+                            scenes["T_world_object"][s], references[objects[s]], count)
+        for s in tqdm(range(len(objects)), desc=desc or f"L={count}", unit="scene", leave=False, disable=not progress)
+    ]
+    return summarise_subset_rows(rows, objects)
