@@ -221,9 +221,8 @@ class DaskExecutor(Executor):
         return out
 
     def describe(self) -> str:
-        workers = self.client.scheduler_info().get("workers", {})
-        threads = sum(int(w.get("nthreads", 0)) for w in workers.values())
-        return f"Dask cluster at {self.address}: {len(workers)} workers, {threads} threads"
+        threads = self.client.nthreads()  # worker address -> its threads
+        return f"Dask cluster at {self.address}: {len(threads)} workers, {sum(threads.values())} threads"
 
     def close(self) -> None:
         self.client.close()
@@ -236,6 +235,12 @@ def _probe_scheduler(address: str, timeout_s: float) -> None:
     close itself when collected, which blocks for twice the timeout and prints a traceback.
     """
     from distributed.comm import connect
+
+    try:
+        asyncio.get_running_loop()
+        return  # called from inside an event loop (a notebook): leave the check to the Client
+    except RuntimeError:
+        pass
 
     async def handshake():
         comm = await connect(address, timeout=timeout_s)
