@@ -35,15 +35,11 @@ def main() -> int:
     cfg = compose_config(args.overrides)
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     objects = [str(o) for o in cfg.objects.names]
-    identifier = Identifier.from_artifacts(objects, args.artifacts, cfg)
     scenes = read_artifact(layout.scenes_file(args.artifacts, args.scenes), "scenes")
     references = {o: evaluation.load_object_reference(args.artifacts, o) for o in objects}
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            out = identify_scene_set(identifier, scenes, references, desc=f"identify {args.scenes}")
-    finally:
-        identifier.close()
+    with Identifier.from_artifacts(objects, args.artifacts, cfg) as identifier, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = identify_scene_set(identifier, scenes, references, desc=f"identify {args.scenes}")
     print(json.dumps({"scenes": args.scenes, "overrides": args.overrides, **out}))
     return 0
 

@@ -26,13 +26,12 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     objects = [str(o) for o in cfg.objects.names]
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
-    identifier = Identifier.from_artifacts(objects, artifacts, cfg, distractors=list(cfg.identify.distractors))
     references = {o: evaluation.load_object_reference(artifacts, o) for o in objects}
-    try:
+    with Identifier.from_artifacts(objects, artifacts, cfg, distractors=list(cfg.identify.distractors)) as identifier:
+        print(f"identify {args.scene_set}: {len(scenes['names'])} scenes against {len(identifier.names)} objects, "
+              f"screened on {identifier.describe()}", flush=True)
         out = {"scene_set": args.scene_set,
                **identify_scene_set(identifier, scenes, references, desc=f"identify {args.scene_set}")}
-    finally:
-        identifier.close()
     write_json(layout.metrics_file(artifacts, f"identify_{args.scene_set}"), out)
     print(f"{args.scene_set}: top-1 {100 * out['top1']:.1f} %, top-3 {100 * out['top3']:.1f} %, "
           f"median {out['time_s_median']:.2f} s per identification")

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,10 +32,17 @@ import numpy as np
 from tactile6d import evaluation, identification, layout
 from tactile6d.config import compose_config
 from tactile6d.contacts import Contacts
-from tactile6d.errors import ArtifactError, InputError, NoMatch
+from tactile6d.errors import ArtifactError, ConfigError, InputError, NoMatch
 from tactile6d.estimator import Estimate, Estimator
+from tactile6d.executor import (
+    Executor,
+    LocalExecutor,
+    executor_from_config,
+    process_cache,
+)
 from tactile6d.inputs import check_images, check_sensor_poses
 from tactile6d.object_artifacts import require
+from tactile6d.optimize import use_cpu_devices_for
 from tactile6d.settings import Settings
 from tactile6d.steps import encode as encode_step
 from tactile6d.steps import rank as rank_step
@@ -149,10 +157,10 @@ class Identifier:
 
     def __init__(self, estimators: Mapping[str, Estimator], weights: np.ndarray | None = None,
                  screen: Mapping | None = None, refine_best: bool = True):
-        # Worker processes for the screen (``from_artifacts`` with identify.workers > 1): each loads the
-        # library itself, since estimators (Embree scenes, fcl objects) do not travel between processes.
-        self._worker_args: tuple | None = None
-        self._pool = None
+        # Where the screen runs when it is spread (``spread``): each worker process loads the library itself
+        # from ``_source``, since estimators (Embree scenes, fcl objects) do not travel between processes.
+        self._executor: Executor | None = None
+        self._source: LibrarySource | None = None
         if len(estimators) < 1:
             raise InputError("an identifier needs at least one object")
         self.names = list(estimators)
@@ -219,10 +227,26 @@ class Identifier:
         elif calibrated:
             weights = load_weights(artifacts_dir)
         identifier = cls(estimators, weights, section["screen"], bool(section["refine_best"]))
-        if int(section.get("workers", 1)) > 1:
-            identifier._worker_args = (int(section["workers"]), list(objects), str(artifacts_dir), cfg,
-                                       None if data_dir is None else str(data_dir), background, list(distractors))
+        workers = int(section.get("workers", 1))
+        if workers < 1:
+            raise ConfigError(f"identify.workers must be >= 1, got {workers}")
+        executor = executor_from_config(cfg, workers, initializer=use_cpu_devices_for,
+                                        initargs=(str(cfg["optimize"]["solver"]), int(cfg["optimize"]["cpu_devices"])))
+        if isinstance(executor, LocalExecutor) and executor.workers == 1:
+            return identifier  # this process screens every object: nothing to spread
+        identifier.spread(executor, LibrarySource.of(objects, distractors, artifacts_dir, cfg, data_dir, background))
         return identifier
+
+    def spread(self, executor: Executor, source: LibrarySource) -> None:
+        """Screen the objects through ``executor`` (one task per object and scene) from now on; each worker
+        process loads the library from ``source`` once, on its first task. The identifier closes the
+        executor (``close``)."""
+        self.close()
+        self._executor, self._source = executor, source
+
+    def describe(self) -> str:
+        """Where the objects are screened, for a log line."""
+        return "this process" if self._executor is None else self._executor.describe()
 
     def encode(self, T_world_sensors, images=None) -> SceneEncoding:
         """Read the scene's images once: contacts and latents (module docstring, step 1)."""
@@ -255,29 +279,28 @@ class Identifier:
         return np.array([1e3 * estimate.losses[0], 1e3 * estimate.penetrations[0].max(), agreement])
 
     def screen(self, T_world_sensors, encoding: SceneEncoding) -> list[Candidate]:
-        """Every object's screened candidate, in library order: in this process, or spread over
-        ``identify.workers`` processes (started on first use; the same results, see the tests)."""
+        """Every object's screened candidate, in library order: in this process, or through the executor
+        of ``spread`` (identify.workers > 1 or a Dask cluster's ``executor.address``; the same results,
+        see the tests)."""
         T = check_sensor_poses(T_world_sensors)
-        if self._worker_args is None:
+        if self._executor is None:
             return [self.candidate(n, T, encoding) for n in self.names]
-        if self._pool is None:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
-
-            workers, *load = self._worker_args
-            # spawn, not fork: a forked child would inherit the parent's torch and Embree thread pools half-made
-            self._pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_start_worker, initargs=tuple(load))
-        # Longest first would balance better, but which object is slow depends on the scene; one object
-        # per task lets a free worker take the next.
-        return list(self._pool.map(_screen_in_worker, self.names, [T] * len(self.names),
-                                   [encoding] * len(self.names)))
+        # One object per task: which object is slow depends on the scene, and a free worker takes the next.
+        n = len(self.names)
+        return self._executor.map(screen_task, [self._source] * n, self.names, [T] * n, [encoding] * n)
 
     def close(self) -> None:
-        """Stop the worker processes, if any were started (they also stop when the program ends)."""
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        """Release the executor of ``spread``, if any (its worker processes, a cluster connection); the
+        identifier screens in this process afterwards."""
+        if self._executor is not None:
+            self._executor.close()
+            self._executor, self._source = None, None
+
+    def __enter__(self) -> Identifier:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def candidates(self, T_world_sensors, images=None) -> tuple[list[Candidate], SceneEncoding]:
         """Every object's screened candidate (steps 1-2), in library order, and the scene's encoding."""
@@ -382,21 +405,50 @@ def _estimate_encoded(est: Estimator, T_world_sensors, encoding: SceneEncoding) 
     return est.estimate_encoded(T_world_sensors, encoding.contacts, angles)
 
 
-_WORKER: Identifier | None = None
+@dataclass(frozen=True)
+class LibrarySource:
+    """What a worker process loads an identifier's library from: ``Identifier.from_artifacts``'s
+    arguments, with absolute paths (a worker's working directory may be another) and the config as
+    plain containers (it is pickled to the workers).
+
+    token: one per identifier, so that a long-lived worker (a Dask cluster's) reloads for a new one: the
+    artifacts may have changed between two stage runs. background: None for the configured one.
+    """
+
+    token: str
+    objects: tuple[str, ...]
+    distractors: tuple[str, ...]
+    artifacts_dir: str
+    cfg: dict
+    data_dir: str | None
+    background: np.ndarray | None
+
+    @classmethod
+    def of(cls, objects, distractors, artifacts_dir, cfg, data_dir=None, background=None) -> LibrarySource:
+        from omegaconf import OmegaConf
+
+        container = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
+        paths = container.get("paths", {})
+        for key in ("artifacts_dir", "data_dir"):
+            if paths.get(key) is not None:
+                paths[key] = str(Path(paths[key]).expanduser().resolve())
+        # A worker screens in its own process: no executor within an executor.
+        container.setdefault("identify", {})["workers"] = 1
+        container["executor"] = {**container.get("executor", {}), "address": None}
+        return cls(uuid.uuid4().hex, tuple(objects), tuple(distractors), str(Path(artifacts_dir).resolve()),
+                   container, None if data_dir is None else str(Path(data_dir).resolve()),
+                   None if background is None else np.asarray(background))
+
+    def load(self) -> Identifier:
+        """The library's identifier, screening in this process (no weights: it only screens)."""
+        from omegaconf import OmegaConf
+
+        return Identifier.from_artifacts(self.objects, self.artifacts_dir, OmegaConf.create(self.cfg), self.data_dir,
+                                         self.background, calibrated=False, distractors=self.distractors)
 
 
-def _start_worker(objects, artifacts_dir, cfg, data_dir, background, distractors) -> None:
-    """A worker process's start: load the library once, with one worker (no pools within pools)."""
-    global _WORKER
-    from omegaconf import OmegaConf
-
-    from tactile6d.optimize import use_cpu_devices_for
-
-    use_cpu_devices_for(str(cfg["optimize"]["solver"]), int(cfg["optimize"]["cpu_devices"]))
-    cfg = OmegaConf.merge(cfg, {"identify": {"workers": 1}})
-    _WORKER = Identifier.from_artifacts(objects, artifacts_dir, cfg, data_dir, background, calibrated=False,
-                                        distractors=distractors)
-
-
-def _screen_in_worker(name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:
-    return _WORKER.candidate(name, T_world_sensors, encoding)
+def screen_task(source: LibrarySource, name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:
+    """One task of a spread screen: object ``name``'s candidate, from this process's copy of the library
+    (loaded on its first task, and kept while it screens for the same identifier)."""
+    library = process_cache(("identify library", source.token), source.load, slot="identify library")
+    return library.candidate(name, T_world_sensors, encoding)

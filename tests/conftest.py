@@ -20,3 +20,20 @@ def data_dir() -> Path:
     if found is None:
         pytest.skip("no data directory (set TACTILE6D_DATA or put the data at ../shared/data)")
     return found
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """A real Dask LocalCluster of 2 single-threaded worker processes on 127.0.0.1 -> its scheduler
+    address (the executor's tests, and identification spread over a cluster)."""
+    import dask
+    from distributed import LocalCluster
+
+    environ = dict(os.environ)  # the nannies write their workers' variables into this process's environment
+    # Dask's MALLOC_TRIM_THRESHOLD_ slows the renderer ~1.8x (docs/distributed.md); it changes no result.
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None) as local:
+            yield local.scheduler_address
+    os.environ.clear()
+    os.environ.update(environ)

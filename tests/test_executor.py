@@ -132,25 +132,9 @@ def test_an_unreachable_scheduler_is_a_clear_error():
 # --- a real Dask cluster on localhost ---------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    """A Dask LocalCluster of 2 single-threaded worker processes on 127.0.0.1 -> its scheduler address."""
-    import dask
-    from distributed import LocalCluster
-
-    environ = dict(os.environ)  # the nannies write their workers' variables into this process's environment
-    # Dask's MALLOC_TRIM_THRESHOLD_ slows the renderer ~1.8x (docs/distributed.md); it changes no result.
-    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None) as local:
-            yield local.scheduler_address
-    os.environ.clear()
-    os.environ.update(environ)
-
-
-def test_dask_gives_the_local_results_in_order(cluster, fresh_process_state):
+def test_dask_gives_the_local_results_in_order(dask_cluster, fresh_process_state):
     n = 24
-    cfg = compose_config([f"executor.address={cluster}"])
+    cfg = compose_config([f"executor.address={dask_cluster}"])
     with ex.executor_from_config(cfg, 99, initializer, ("tag",)) as pool:
         assert isinstance(pool, ex.DaskExecutor)
         assert "2 workers, 2 threads" in pool.describe()
@@ -170,7 +154,7 @@ def md5(path) -> str:
 
 
 @pytest.mark.slow
-def test_render_database_through_dask_writes_the_same_file(cluster, data_dir, tmp_path, monkeypatch):
+def test_render_database_through_dask_writes_the_same_file(dask_cluster, data_dir, tmp_path, monkeypatch):
     """prim_sphere, 70 points, in 3 tasks of 32 poses: on the cluster, in 2 local processes, in tasks of 7
     poses, in this process. The same images; the same file, byte for byte, for the same config (the
     file stamps the render section, render.workers included)."""
@@ -179,7 +163,7 @@ def test_render_database_through_dask_writes_the_same_file(cluster, data_dir, tm
     assert prepare_object.main(common + [f"paths.artifacts_dir={local}", "prepare.collision=hull",
                                          "prepare.n_metric_points=50"]) == 0
     assert sample_surface.main(common + [f"paths.artifacts_dir={local}"]) == 0
-    runs = {"local": ["render.workers=2"], "dask": [f"executor.address={cluster}"],
+    runs = {"local": ["render.workers=2"], "dask": [f"executor.address={dask_cluster}"],
             "chunks-of-7": ["render.workers=2"], "this-process": ["render.workers=1"]}
     files = {}
     for label, overrides in runs.items():
@@ -236,7 +220,7 @@ def without_timings(results: dict) -> dict:
 
 
 @pytest.mark.slow
-def test_ablation_through_dask_gives_the_same_metrics(cluster, tiny_scenes, data_dir, tmp_path):
+def test_ablation_through_dask_gives_the_same_metrics(dask_cluster, tiny_scenes, data_dir, tmp_path):
     cfg = compose_config([f"paths.artifacts_dir={tiny_scenes}", f"paths.data_dir={data_dir}", "select.N=200",
                           "select.delta_h=3.2", "select.delta_h_max=3.2", "select.contacts=landmark"])
     OmegaConf.set_struct(cfg, False)
@@ -246,7 +230,7 @@ def test_ablation_through_dask_gives_the_same_metrics(cluster, tiny_scenes, data
     OmegaConf.save(cfg, tmp_path / "params.yaml")
     metrics = layout.metrics_file(tiny_scenes, "ablation_tiny")
     results = {}
-    for label, overrides in (("local-1", ["ablation.workers=1"]), ("dask", [f"executor.address={cluster}"])):
+    for label, overrides in (("local-1", ["ablation.workers=1"]), ("dask", [f"executor.address={dask_cluster}"])):
         assert ablation.main(["--scene-set", "tiny", "--params", str(tmp_path / "params.yaml"), *overrides]) == 0
         results[label] = json.loads(metrics.read_text())
     assert set(results["dask"]) == {"paper", "normals", "paper_again"}

@@ -1,6 +1,8 @@
 """Identification: the calibrated score (against a plain reference), an identifier that tells a box from
 a box of another size, bad libraries, and the ``tactile6d identify`` command's errors."""
 
+import os
+
 import numpy as np
 import pytest
 import trimesh
@@ -9,7 +11,7 @@ from tactile6d import geometry as g
 from tactile6d import identification
 from tactile6d.cli import main as cli_main
 from tactile6d.config import compose_config
-from tactile6d.errors import ArtifactError, InputError
+from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.estimator import Estimator
 from tactile6d.identifier import Identifier
 from tactile6d.sensor import sensor_poses_touching
@@ -243,26 +245,65 @@ def touching_sensors(artifacts, name, wanted):
 BOX_TOUCHES = [((0.05, 0.01, 0.0), (1, 0, 0)), ((0.0, -0.03, 0.01), (0, -1, 0)), ((0.02, 0.0, 0.02), (0, 0, 1))]
 
 
-@pytest.mark.slow  # spawns two processes that import the library
-def test_worker_processes_give_the_same_identification(prim_artifacts):
-    """identify.workers=2 screens the objects in two spawned processes: the same candidates as one process."""
+@pytest.mark.slow  # spawns two processes and a Dask cluster's two, each loading the library
+def test_spread_screens_give_the_same_identification(prim_artifacts, dask_cluster):
+    """identify.workers=2 screens the objects in two spawned processes, executor.address on a real Dask
+    cluster's workers: the same candidates, probabilities and poses as one process."""
     T_sensors = touching_sensors(prim_artifacts, "prim_box", BOX_TOUCHES)
     results = {}
-    for workers in (1, 2):
-        cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", f"identify.workers={workers}"])
-        identifier = Identifier.from_artifacts(["prim_box", "prim_cylinder"], prim_artifacts, cfg,
-                                               distractors=["shape_3"])
-        try:
-            results[workers] = identifier.identify(T_sensors)
-        finally:
-            identifier.close()
-    one, two = results[1], results[2]
+    runs = {"one process": ["identify.workers=1"], "2 local processes": ["identify.workers=2"],
+            "dask": [f"executor.address={dask_cluster}"]}
+    for label, overrides in runs.items():
+        cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", *overrides])
+        with Identifier.from_artifacts(["prim_box", "prim_cylinder"], prim_artifacts, cfg,
+                                       distractors=["shape_3"]) as identifier:
+            where = identifier.describe()
+            results[label] = [identifier.identify(T_sensors) for _ in range(2)]  # the second: library loaded
+        assert where == {"one process": "this process", "2 local processes": "2 local worker processes"}.get(
+            label, f"Dask cluster at {dask_cluster}: 2 workers, 2 threads")
+    one = results["one process"][0]
     assert one.best.name == "prim_box" and len(one.objects) == 3
-    assert [o.name for o in one.objects] == [o.name for o in two.objects]
-    for a, b in zip(one.objects, two.objects):
-        np.testing.assert_array_equal(a.candidate.features, b.candidate.features)
-        assert a.probability == b.probability
-        np.testing.assert_array_equal(a.pose, b.pose)
+    for label, found in results.items():
+        for result in found:
+            assert [o.name for o in result.objects] == [o.name for o in one.objects], label
+            for a, b in zip(one.objects, result.objects):
+                np.testing.assert_array_equal(a.candidate.features, b.candidate.features)
+                assert a.probability == b.probability
+                np.testing.assert_array_equal(a.pose, b.pose)
+
+
+def test_a_worker_reloads_the_library_for_a_new_identifier(prim_artifacts, monkeypatch):
+    """A long-lived worker (a cluster's) keeps one library per identifier: the same source is loaded
+    once, a new identifier's (new token, the artifacts may have changed) replaces it."""
+    from tactile6d import executor
+    from tactile6d.identifier import LibrarySource, screen_task
+
+    cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]"])
+    loads = []
+    original = LibrarySource.load
+    monkeypatch.setattr(LibrarySource, "load", lambda self: loads.append(self.token) or original(self))
+    executor.clear_process_cache()
+    T_sensors = touching_sensors(prim_artifacts, "prim_box", BOX_TOUCHES)
+    with Identifier.from_artifacts(["prim_box"], prim_artifacts, cfg) as here:
+        encoding = here.encode(T_sensors)
+        expected = here.candidate("prim_box", T_sensors, encoding)
+    relative = os.path.relpath(prim_artifacts)
+    first, second = (LibrarySource.of(["prim_box"], [], relative, cfg) for _ in range(2))
+    assert first.artifacts_dir == str(prim_artifacts.resolve()) and first.token != second.token
+    assert first.cfg["identify"]["workers"] == 1 and first.cfg["executor"]["address"] is None
+    try:
+        for source in (first, first, second):
+            got = screen_task(source, "prim_box", T_sensors, encoding)
+            np.testing.assert_array_equal(got.features, expected.features)
+    finally:
+        executor.clear_process_cache()
+    assert loads == [first.token, second.token]
+
+
+def test_a_bad_worker_count_is_a_config_error(prim_artifacts):
+    cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", "identify.workers=0"])
+    with pytest.raises(ConfigError, match="identify.workers must be >= 1, got 0"):
+        Identifier.from_artifacts(["prim_box"], prim_artifacts, cfg)
 
 
 def test_bench_identify_without_artifacts_names_what_is_missing(tmp_path, capsys):

@@ -39,21 +39,21 @@ def main(argv: list[str]) -> int:
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     objects = args.object or [str(o) for o in cfg.objects.names]
-    identifier = Identifier.from_artifacts(objects, artifacts, cfg)
     scenes = paper_triplets(DataStore(cfg.paths), objects)
     if not scenes:
         raise InputError(f"none of {', '.join(objects)} has triplets in the paper's set")
-    print(f"{len(scenes)} triplets against a library of {len(objects)} objects")
 
-    _, _, T, images = scenes[0]
-    identifier.identify(T, images)  # warm-up: library start-up
-    seconds = {step: [] for step in STEPS}
-    right = 0
-    for obj, _, T, images in scenes:
-        result = identifier.identify(T, images)
-        right += result.best.name == obj
-        for step in STEPS:
-            seconds[step].append(result.seconds[step])
+    with Identifier.from_artifacts(objects, artifacts, cfg) as identifier:
+        print(f"{len(scenes)} triplets against a library of {len(objects)} objects, screened on {identifier.describe()}")
+        _, _, T, images = scenes[0]
+        identifier.identify(T, images)  # warm-up: library start-up
+        seconds = {step: [] for step in STEPS}
+        right = 0
+        for obj, _, T, images in scenes:
+            result = identifier.identify(T, images)
+            right += result.best.name == obj
+            for step in STEPS:
+                seconds[step].append(result.seconds[step])
     medians = {step: float(np.median(v)) for step, v in seconds.items()}
     print(f"median {medians['total']:.3f} s per identification over {len(scenes)} triplets "
           f"[{', '.join(f'{s} {medians[s]:.3f}' for s in STEPS[:-1])}]; right object first in {right} of {len(scenes)}")

@@ -88,8 +88,8 @@ def main(argv: list[str]) -> int:
     objects, distractors = library_of(args.objects, known)
     T_world_sensors, images = read_scene_dir(args.scene)
     background = read_tactile_image(args.background) if args.background else None
-    identifier = Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors)
-    result = identifier.identify(T_world_sensors, images)
+    with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors) as identifier:
+        result = identifier.identify(T_world_sensors, images)
     print(json.dumps({"scene": str(args.scene), **result.to_dict()}) if args.json else as_text(result))
     return 0
 
