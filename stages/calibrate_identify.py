@@ -35,14 +35,15 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     objects = [str(o) for o in cfg.objects.names]
     distractors = [str(o) for o in cfg.identify.distractors]
-    identifier = Identifier.from_artifacts(objects, artifacts, cfg, calibrated=False, distractors=distractors)
     scenes = read_artifact(layout.scenes_file(artifacts, SCENE_SET), "scenes")
     truth = np.array([objects.index(str(o)) for o in scenes["objects"]])
     t0 = time.perf_counter()
     features = []
-    for s in tqdm(range(len(truth)), desc=f"screening {SCENE_SET} x {len(identifier.names)} objects", unit="scene"):
-        found, _ = identifier.candidates(scenes["T_world_sensors"][s], scenes["images"][s])
-        features.append(np.stack([c.features for c in found]))
+    with Identifier.from_artifacts(objects, artifacts, cfg, calibrated=False, distractors=distractors) as identifier:
+        for s in tqdm(range(len(truth)), desc=f"screening {SCENE_SET} x {len(identifier.names)} objects on "
+                      f"{identifier.describe()}", unit="scene"):
+            found, _ = identifier.candidates(scenes["T_world_sensors"][s], scenes["images"][s])
+            features.append(np.stack([c.features for c in found]))
     features = np.stack(features)
     weights = identification.fit_weights(features, truth, L2)
     probabilities = identification.scores_to_probabilities(identification.features_to_scores(features, weights))

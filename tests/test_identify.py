@@ -13,7 +13,7 @@ from tactile6d.cli import main as cli_main
 from tactile6d.config import compose_config
 from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.estimator import Estimator
-from tactile6d.identifier import Identifier
+from tactile6d.identifier import Identifier, load_weights
 from tactile6d.sensor import sensor_poses_touching
 from tactile6d.settings import Settings
 from tactile6d.surface import sample_surface_even
@@ -339,25 +339,32 @@ def test_the_confusion_figure_leaves_out_distractors_nothing_was_taken_for():
 
 
 @pytest.mark.slow  # identifies two scenes against two objects through the stage
-def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifacts):
-    import json
-
-    from stages import identify as identify_stage
+def write_tiny_scenes(artifacts, name):
+    """A scene set of two scenes: the box and the cylinder touched by three sensors each (blank images)."""
     from tactile6d import layout
     from tactile6d.io import write_artifact
     from tactile6d.scenes import SceneSet
 
-    box = touching_sensors(prim_artifacts, "prim_box", BOX_TOUCHES)
-    cylinder = touching_sensors(prim_artifacts, "prim_cylinder", [((0.03, 0.0, 0.0), (1, 0, 0)),
-                                                                   ((-0.02, 0.02, 0.02), (-0.7, 0.7, 0)),
-                                                                   ((0.0, 0.0, 0.05), (0, 0, 1))])
+    box = touching_sensors(artifacts, "prim_box", BOX_TOUCHES)
+    cylinder = touching_sensors(artifacts, "prim_cylinder", [((0.03, 0.0, 0.0), (1, 0, 0)),
+                                                              ((-0.02, 0.02, 0.02), (-0.7, 0.7, 0)),
+                                                              ((0.0, 0.0, 0.05), (0, 0, 1))])
     scenes = SceneSet(
         names=np.array(["box", "cylinder"]), objects=np.array(["prim_box", "prim_cylinder"]),
         T_world_object=np.stack([T_TRUE, T_TRUE]), T_world_sensors=np.stack([box, cylinder]),
         images=np.zeros((2, 3, 320, 240, 3), np.uint8), contact_points=np.zeros((2, 3, 3)),
         contact_normals=np.zeros((2, 3, 3)), contact_types=np.zeros((2, 3), dtype=np.int64),
     )
-    write_artifact(layout.scenes_file(prim_artifacts, "tiny"), "scenes", scenes.as_datasets())
+    write_artifact(layout.scenes_file(artifacts, name), "scenes", scenes.as_datasets())
+
+
+def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifacts):
+    import json
+
+    from stages import identify as identify_stage
+    from tactile6d import layout
+
+    write_tiny_scenes(prim_artifacts, "tiny")
     assert identify_stage.main(["--scene-set", "tiny", f"paths.artifacts_dir={prim_artifacts}",
                                 "objects.names=[prim_box,prim_cylinder]", "identify.distractors=[shape_3]",
                                 "select.method=baseline", "identify.weights=[1,1,1]"]) == 0
@@ -366,3 +373,26 @@ def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifa
     assert metrics["confusion"] == [[1, 0, 0], [0, 1, 0], [0, 0, 0]]
     assert metrics["top1"] == 1.0 and metrics["top1_by_object"] == {"prim_box": 1.0, "prim_cylinder": 1.0}
     assert metrics["pose_of_correct"]["pos_err_cm_top1"] < 1.0
+
+
+def test_the_calibration_stage_fits_weights_on_the_validation_scenes(prim_artifacts, tmp_path):
+    """calibrate_identify screens the validation scenes against the library (objects and distractors)
+    and writes weights with which the true objects rank first."""
+    import json
+    import shutil
+
+    from stages import calibrate_identify
+    from tactile6d import layout
+
+    artifacts = tmp_path / "artifacts"  # a copy: the module's fixture has no validation set to keep clean
+    shutil.copytree(prim_artifacts, artifacts)
+    write_tiny_scenes(artifacts, "validation")
+    assert calibrate_identify.main([f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box,prim_cylinder]",
+                                    "identify.distractors=[shape_3]", "select.method=baseline"]) == 0
+    out = json.loads(layout.identify_calibration_file(artifacts).read_text())
+    assert out["objects"] == ["prim_box", "prim_cylinder", "shape_3"] and out["n_scenes"] == 2
+    assert out["features"] == list(identification.FEATURES) and len(out["weights"]) == len(identification.FEATURES)
+    assert np.all(np.isfinite(out["weights"]))
+    assert out["top1_on_calibration_scenes"] == 1.0
+    # the identifier loads these weights when identify.weights is null
+    np.testing.assert_array_equal(load_weights(artifacts), out["weights"])
