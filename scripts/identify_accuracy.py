@@ -3,10 +3,10 @@
     python scripts/identify_accuracy.py --artifacts artifacts --scenes offaxis [key=value ...]
 
 The identify stage's computation (``identifier.identify_scene_set``) under config overrides, without
-writing the stage's metrics: each scene is identified against every object of ``objects.names``, with
-the weights of the calibrate_identify stage (or ``identify.weights=[...]``). Prints one line of JSON:
-the scene set, the overrides and the stage's figures (top-1, top-3, per-object top-1, confusion
-matrix, seconds per identification, pose metrics of the scenes identified correctly).
+writing the stage's metrics: each scene is identified against every object of ``objects.names`` and
+``identify.distractors``, with the weights of the calibrate_identify stage (or ``identify.weights=[...]``).
+Prints one line of JSON: the scene set, the overrides and the stage's figures (top-1, top-3, per-object
+top-1, confusion matrix, seconds per identification, pose metrics of the scenes identified correctly).
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ def main() -> int:
     objects = [str(o) for o in cfg.objects.names]
     scenes = read_artifact(layout.scenes_file(args.artifacts, args.scenes), "scenes")
     references = {o: evaluation.load_object_reference(args.artifacts, o) for o in objects}
-    with Identifier.from_artifacts(objects, args.artifacts, cfg) as identifier, warnings.catch_warnings():
+    with Identifier.from_artifacts(objects, args.artifacts, cfg, distractors=list(cfg.identify.distractors)) \
+            as identifier, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         out = identify_scene_set(identifier, scenes, references, desc=f"identify {args.scenes}")
     print(json.dumps({"scenes": args.scenes, "overrides": args.overrides, **out}))

@@ -265,7 +265,7 @@ class Identifier:
         """One object's screened estimate and features for an encoded scene."""
         est = self.screened[name]
         try:
-            estimate = _estimate_encoded(est, T_world_sensors, encoding)
+            estimate = estimate_encoded(est, T_world_sensors, encoding)
         except NoMatch as exc:
             return Candidate(name, np.full(len(identification.FEATURES), np.nan), None, str(exc))
         return Candidate(name, self.features(est, T_world_sensors, estimate), estimate)
@@ -330,7 +330,7 @@ class Identifier:
             # The full settings search at least as wide as the screen's, so the object matches again. Its
             # features and probability stay the screen's: they are what the weights were calibrated on.
             try:
-                estimate = _estimate_encoded(self.full[best.name], T_world_sensors, encoding)
+                estimate = estimate_encoded(self.full[best.name], T_world_sensors, encoding)
             except NoMatch:
                 pass  # the screen's estimate stands
             else:
@@ -399,7 +399,7 @@ def identify_scene_set(identifier: Identifier, scenes: Mapping[str, np.ndarray],
     }
 
 
-def _estimate_encoded(est: Estimator, T_world_sensors, encoding: SceneEncoding) -> Estimate:
+def estimate_encoded(est: Estimator, T_world_sensors, encoding: SceneEncoding) -> Estimate:
     """``est``'s estimate from a scene's shared encoding (its own angles from the shared latents)."""
     angles = None if encoding.latents is None else np.asarray(est.encoder.angles(encoding.latents), np.float64)
     return est.estimate_encoded(T_world_sensors, encoding.contacts, angles)
