@@ -53,7 +53,7 @@ def main() -> int:
             T = scenes["T_world_sensors"][s]
             found, encoding = ident.candidates(T, scenes["images"][s])
             scores = identification.features_to_scores(np.stack([c.features for c in found]), ident.weights)
-            order = list(np.lexsort((np.arange(len(found)), -scores)))
+            order = list(np.lexsort((np.arange(len(found)), scores)))  # scores: lower is better, inf: no match
             t0 = time.perf_counter()
             full_scores = {}
             for i in order[:args.top]:
@@ -66,7 +66,7 @@ def main() -> int:
                 features = ident.features(ident.full[found[i].name], T, estimate)
                 full_scores[i] = float(identification.features_to_scores(features[None], ident.weights)[0])
             extra_s.append(time.perf_counter() - t0)
-            head = sorted(order[:args.top], key=lambda i: (-full_scores.get(i, -np.inf), order.index(i)))
+            head = sorted(order[:args.top], key=lambda i: (full_scores.get(i, np.inf), order.index(i)))
             reranked = head + order[args.top:]
             names = {"screen": [found[i].name for i in order], "reranked": [found[i].name for i in reranked]}
             for key in ranks:
