@@ -1,13 +1,15 @@
-"""Stage calibrate_identify: the identification score's weights, fitted on the validation scenes.
+"""Stage calibrate_identify: the identification score's weights, fitted on the calibration scenes.
 
-Every validation scene is screened against every object of the library, ``objects.names`` and
+Every scene of the ``calibration`` set (``scenes.calibration``: generated like offaxis, with its own
+seed; no other stage reads it) is screened against every object of the library, ``objects.names`` and
 ``identify.distractors`` (``Identifier.candidates``:
 the images read once, each object estimated with ``identify.screen``), and the weights of the
 conditional logit over the best poses' features are fitted by maximum likelihood
-(``identification.fit_weights``). Validation only: the test set never enters the calibration. Writes
+(``identification.fit_weights``). The test set never enters the calibration, and the validation and
+offaxis figures of stage identify are on scenes the weights never saw. Writes
 ``artifacts/identify/calibration.json``: the feature names, the weights, the objects and scene set
 used, and the fitted score's top-1 / top-3 accuracy on those same scenes (an optimistic figure; the
-``evaluate`` figures on other sets are the honest ones).
+identify stage's figures on other sets are the honest ones).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from tactile6d.identifier import Identifier
 from tactile6d.io import read_artifact, write_json
 from tactile6d.optimize import use_cpu_devices_for
 
-SCENE_SET = "validation"
+SCENE_SET = "calibration"
 L2 = 1e-3  # ridge on the weights: keeps them finite when every true object already scores best
 
 

@@ -1,5 +1,6 @@
-"""Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported; ``validation`` and ``offaxis``
-generated).
+"""Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported; ``validation``, ``offaxis`` and
+``calibration`` generated: the last from ``identify.calibration_scenes``, the scenes stage calibrate_identify
+fits on).
 
 Reads the objects' artifacts (meshes for contact types; surface points so validation contacts avoid
 database points), the paper's triplets from the data directory, config sections ``scenes`` and
@@ -22,7 +23,7 @@ from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, read_scene_dir, write_artifact
 from tactile6d.render import DigitRenderer, load_background_bgr
 
-SCENE_SETS = ("caddeo2023", "validation", "offaxis")
+SCENE_SETS = ("caddeo2023", "validation", "offaxis", "calibration")
 
 
 def load_mesh(artifacts_dir: str, name: str) -> trimesh.Trimesh:
@@ -56,9 +57,16 @@ def import_caddeo2023(object_names: list[str], store: DataStore, artifacts_dir: 
                                                surfaces)
 
 
+def scene_spec(cfg, scene_set: str):
+    """The config section a generated set is drawn from: ``identify.calibration_scenes`` for the
+    calibration set (an identification concern, kept out of ``scenes`` so that editing it re-makes no
+    evaluated set), ``scenes.<scene_set>`` otherwise."""
+    return cfg.identify.calibration_scenes if scene_set == "calibration" else cfg.scenes[scene_set]
+
+
 def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
-    """A generated scene set from its config section ``scenes.<scene_set>``."""
-    v = cfg.scenes[scene_set]
+    """A generated scene set from its config section (``scene_spec``)."""
+    v = scene_spec(cfg, scene_set)
     spec = scenes.ValidationSpec(
         scenes_per_object=int(v.scenes_per_object),
         n_sensors=int(v.n_sensors),
@@ -105,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
         out.as_datasets(),
         attrs={"scene_set": scene_set, "contact_type_counts": counts.tolist()},
         config={"scenes": section_to_dict(cfg, "scenes"), "render": section_to_dict(cfg, "render"),
+                **({"identify.calibration_scenes": section_to_dict(cfg, "identify.calibration_scenes")}
+                   if scene_set == "calibration" else {}),
                 "objects": section_to_dict(cfg, "objects")},
         compression="lzf",
     )

@@ -127,7 +127,7 @@ def ablation_sections(artifacts: str, order: list[str], figures: Path) -> list[s
     return parts
 
 
-IDENTIFY_SETS = {"caddeo2023": "the paper's 40 triplets", "validation": "validation (the calibration set)",
+IDENTIFY_SETS = {"caddeo2023": "the paper's 40 triplets", "validation": "validation",
                  "offaxis": "off-axis scenes"}
 
 
@@ -152,8 +152,8 @@ def identification_section(artifacts: str, figures: Path, workers: int) -> list[
                "built-in primitives and procedural shapes; the confusion figures show those something was taken for)")
     return [
         ("Each scene identified against the whole library without being told its object "
-         "(`tactile6d.identifier`; weights fitted on the validation scenes by stage "
-         f"`calibrate_identify`). The library: {library}. Pose figures: the best pose of the scenes identified correctly. Seconds: median "
+         "(`tactile6d.identifier`; weights fitted by stage `calibrate_identify` on scenes of their own, "
+         f"`identify.calibration_scenes`, which none of these sets shares). The library: {library}. Pose figures: the best pose of the scenes identified correctly. Seconds: median "
          f"per identification, {workers} worker process{'es' if workers > 1 else ''} (`identify.workers`), in the "
          "pipeline; `tactile6d bench identify` measures it alone (docs/identification.md)."),
         "",

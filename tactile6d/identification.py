@@ -13,8 +13,8 @@ pose leaves a few numbers, the **features** (``FEATURES``, lower is better):
 An object is scored ``s = w . f`` and the library's objects are turned into probabilities by a
 conditional logit, ``p_o = exp(-s_o) / sum_k exp(-s_k)`` over the objects that matched at all (an object
 whose database fits no tuple of the sensors' distances gets p = 0). The weights ``w`` (F,) >= 0 are
-fitted by maximum likelihood on scenes whose object is known (``fit_weights``): validation scenes
-only, never the test set. Fitted weights put the features on one scale, so that scores are comparable
+fitted by maximum likelihood on scenes whose object is known (``fit_weights``): generated scenes of
+their own (stage calibrate_identify), never the test set. Fitted weights put the features on one scale, so that scores are comparable
 across objects and scenes, and the probabilities are confidences fitted to those labelled scenes.
 """
 

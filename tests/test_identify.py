@@ -375,8 +375,8 @@ def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifa
     assert metrics["pose_of_correct"]["pos_err_cm_top1"] < 1.0
 
 
-def test_the_calibration_stage_fits_weights_on_the_validation_scenes(prim_artifacts, tmp_path):
-    """calibrate_identify screens the validation scenes against the library (objects and distractors)
+def test_the_calibration_stage_fits_weights_on_the_calibration_scenes(prim_artifacts, tmp_path):
+    """calibrate_identify screens the calibration scenes against the library (objects and distractors)
     and writes weights with which the true objects rank first."""
     import json
     import shutil
@@ -384,13 +384,14 @@ def test_the_calibration_stage_fits_weights_on_the_validation_scenes(prim_artifa
     from stages import calibrate_identify
     from tactile6d import layout
 
-    artifacts = tmp_path / "artifacts"  # a copy: the module's fixture has no validation set to keep clean
+    artifacts = tmp_path / "artifacts"  # a copy: the module's fixture has no calibration set to keep clean
     shutil.copytree(prim_artifacts, artifacts)
-    write_tiny_scenes(artifacts, "validation")
+    write_tiny_scenes(artifacts, "calibration")
     assert calibrate_identify.main([f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box,prim_cylinder]",
                                     "identify.distractors=[shape_3]", "select.method=baseline"]) == 0
     out = json.loads(layout.identify_calibration_file(artifacts).read_text())
     assert out["objects"] == ["prim_box", "prim_cylinder", "shape_3"] and out["n_scenes"] == 2
+    assert out["scene_set"] == "calibration"
     assert out["features"] == list(identification.FEATURES) and len(out["weights"]) == len(identification.FEATURES)
     assert np.all(np.isfinite(out["weights"]))
     assert out["top1_on_calibration_scenes"] == 1.0

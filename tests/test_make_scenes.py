@@ -65,6 +65,20 @@ def test_offaxis_generation_tilts_the_sensors_and_moves_the_imprint_off_centre(a
     assert np.median(offsets) > 8  # pixels; about 0.7 mm on the gel
 
 
+def test_the_calibration_set_is_drawn_from_its_identify_section(artifacts):
+    """calibration's spec is identify.calibration_scenes (not a scenes section): its seed and size are
+    those, and it is stamped into the file."""
+    common = [f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box]",
+              "identify.calibration_scenes.scenes_per_object=1"]
+    assert make_scenes.main(["--scene-set", "calibration", *common]) == 0
+    first = read_artifact(layout.scenes_file(artifacts, "calibration"), "scenes")
+    assert first["images"].shape == (1, 3, 320, 240, 3)
+    assert first.config["identify.calibration_scenes"]["seed"] == 7
+    assert make_scenes.main(["--scene-set", "calibration", *common, "identify.calibration_scenes.seed=8"]) == 0
+    other = read_artifact(layout.scenes_file(artifacts, "calibration"), "scenes")
+    assert not np.allclose(first["T_world_sensors"], other["T_world_sensors"])
+
+
 def test_unknown_scene_set(artifacts):
     with pytest.raises(SystemExit):
         make_scenes.main(["--scene-set", "nope", f"paths.artifacts_dir={artifacts}"])

@@ -4,8 +4,8 @@ One scene folder in the paper's triplet layout (``poses_sensors.txt`` + ``Image_
 for ``tactile6d estimate``) against the objects given with ``--objects`` (default: every object with
 artifacts in the artifacts directory, and every distractor with artifacts in its ``distractors/``
 folder, ``identify.distractors``). The images are read once; every object is estimated on them
-and scored with the weights the ``calibrate_identify`` stage fitted on the validation scenes
-(``tactile6d.identifier``). Output: one line per object, most probable first, with its probability,
+and scored with the weights the ``calibrate_identify`` stage fitted on the calibration scenes
+(``identify.calibration_scenes``; ``tactile6d.identifier``). Output: one line per object, most probable first, with its probability,
 score and best pose (``x y z ax ay az angle``, world frame), objects that match nothing last; then the
 time per step. ``--json``: one JSON object (``Identification.to_dict``). Errors: one ``error:`` line and
 exit status 2; objects without artifacts are all named in that one line.
