@@ -73,8 +73,8 @@ def test_the_calibration_set_is_drawn_from_its_identify_section(artifacts):
     assert make_scenes.main(["--scene-set", "calibration", *common]) == 0
     first = read_artifact(layout.scenes_file(artifacts, "calibration"), "scenes")
     assert first["images"].shape == (1, 3, 320, 240, 3)
-    assert first.config["identify.calibration_scenes"]["seed"] == 7
-    assert make_scenes.main(["--scene-set", "calibration", *common, "identify.calibration_scenes.seed=8"]) == 0
+    assert first.config["identify.calibration_scenes"]["seed"] == 8
+    assert make_scenes.main(["--scene-set", "calibration", *common, "identify.calibration_scenes.seed=9"]) == 0
     other = read_artifact(layout.scenes_file(artifacts, "calibration"), "scenes")
     assert not np.allclose(first["T_world_sensors"], other["T_world_sensors"])
 
