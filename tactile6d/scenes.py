@@ -194,6 +194,11 @@ def sensor_pose_touching_off_axis(
     return make_pose(R, np.asarray(point, dtype=np.float64) - R @ touching)
 
 
+class PlacementError(RuntimeError):
+    """No draw of ``spec.max_tries`` placed all of a scene's sensors (``draw_validation_scene``): the ones
+    placed first left no room for the rest. ``generate_validation`` draws the scene again."""
+
+
 def draw_validation_scene(
     mesh: trimesh.Trimesh,
     surface: contact.SurfaceSamples,
@@ -208,7 +213,8 @@ def draw_validation_scene(
     Each sensor takes a contact type drawn uniformly among the types the object has (so flat, edge,
     corner and curved contacts are mixed as far as the shape allows), then a random candidate point of
     that type, a random roll and a random press depth; a draw is rejected when the sensor's body
-    would penetrate the object or overlap another sensor's body.
+    would penetrate the object or overlap another sensor's body. PlacementError when ``spec.max_tries``
+    draws do not place all L.
     Returns T_object_sensors (L, 4, 4), candidate indices (L,), depths (L,).
     """
     available = np.unique(candidate_types)
@@ -236,7 +242,7 @@ def draw_validation_scene(
         chosen_idx.append(j)
         chosen_depth.append(depth)
     if len(chosen_T) < spec.n_sensors:
-        raise RuntimeError(f"could not place {spec.n_sensors} sensors without collisions in {spec.max_tries} tries")
+        raise PlacementError(f"could not place {spec.n_sensors} sensors without collisions in {spec.max_tries} tries")
     return np.stack(chosen_T), np.asarray(chosen_idx), np.asarray(chosen_depth)
 
 
@@ -274,9 +280,10 @@ def generate_validation(
     translations within +-``translation_range`` of (0.1, 0, 0.2) m), L sensors from
     ``draw_validation_scene``; images from ``render(object, T_world_object, T_world_sensors, seed)``.
 
-    A draw whose images cannot be rendered (``render`` raises InputError: a tilted gel pressed deeper
-    than the gel allows, or the object inside a sensor body) is drawn again, at most ``spec.max_tries``
-    times per scene; apex contacts never need it, so their random stream is that of a single draw.
+    A draw whose sensors cannot all be placed (PlacementError) or whose images cannot be rendered
+    (``render`` raises InputError: a tilted gel pressed deeper than the gel allows, or the object inside
+    a sensor body) is drawn again, at most ``spec.max_tries`` times per scene; a set that never needs it
+    has the random stream of single draws.
     """
     rng = np.random.default_rng(seed)
     rows = []
@@ -287,7 +294,10 @@ def generate_validation(
             T_world_object = make_pose(random_rotations(1, rng)[0],
                                        CADDEO2023_T_WORLD_OBJECT[:3, 3] + rng.uniform(-1, 1, 3) * spec.translation_range)
             for _ in range(spec.max_tries):
-                T_object_sensors, idx, _ = draw_validation_scene(mesh, surface, cand, cand_n, cand_t, spec, rng)
+                try:
+                    T_object_sensors, idx, _ = draw_validation_scene(mesh, surface, cand, cand_n, cand_t, spec, rng)
+                except PlacementError:
+                    continue
                 T_world_sensors = T_world_object @ T_object_sensors
                 try:
                     images = render(obj, T_world_object, T_world_sensors, int(rng.integers(2**31)))
@@ -295,7 +305,7 @@ def generate_validation(
                 except InputError:
                     continue
             else:
-                raise RuntimeError(f"{obj}: no renderable scene in {spec.max_tries} draws")
+                raise RuntimeError(f"{obj}: no placeable, renderable scene in {spec.max_tries} draws")
             rows.append((f"{obj}/scene_{k}", obj, T_world_object, T_world_sensors, images,
                          transform_points(T_world_object, cand[idx]), cand_n[idx] @ T_world_object[:3, :3].T,
                          cand_t[idx]))

@@ -107,6 +107,26 @@ def test_generate_validation_ground_truth_is_consistent(box):
     np.testing.assert_array_equal(again.T_world_sensors, out.T_world_sensors)
 
 
+def test_a_scene_whose_sensors_cannot_all_be_placed_is_drawn_again(box, monkeypatch):
+    """When the first sensors leave no room for the rest (PlacementError), the scene is drawn again
+    instead of stopping the whole set."""
+    mesh, surface = box
+    spec = scenes.ValidationSpec(scenes_per_object=2, candidates_per_object=300)
+    draw, calls = scenes.draw_validation_scene, []
+
+    def first_draw_fails(*args):
+        calls.append(1)
+        if len(calls) == 1:
+            raise scenes.PlacementError("no room")
+        return draw(*args)
+
+    monkeypatch.setattr(scenes, "draw_validation_scene", first_draw_fails)
+    out = scenes.generate_validation(["b"], {"b": mesh}, {"b": surface}, {"b": np.zeros((1, 3)) + 1},
+                                     lambda obj, T_wo, T_ws, seed: np.zeros((len(T_ws), 320, 240, 3), np.uint8),
+                                     spec, seed=3)
+    assert len(out) == 2 and len(calls) == 3
+
+
 def test_off_axis_pose_without_tilt_or_offset_is_the_apex_contact():
     rng = np.random.default_rng(3)
     p, n = rng.normal(size=3) * 0.05, rng.normal(size=3)
