@@ -397,13 +397,18 @@ def _best_n(join, n_max: int, delta_first: float, delta_max: float) -> DistanceS
     """Rule best_n: the n_max tuples of lowest mean error (< delta_max), ties by index order.
 
     count(delta) = #tuples with error < delta grows with delta. Doubling from ``delta_first`` finds an
-    upper bracket with at least n_max tuples (or stops at delta_max), bisection then narrows it until
-    a probe holds between n_max and 4 n_max tuples; each probe stops early past 4 n_max.
+    upper bracket with at least n_max tuples (or stops at delta_max). A probe stops early once it has
+    seen more than 4 n_max tuples; the n_max-th lowest error among those it saw is an upper bound on the
+    n_max-th lowest overall, so the next probe goes just above it, where at least n_max tuples pass. The
+    bracket narrows until a probe completes; bisection takes over when the bound does not shrink (a pile
+    of equal errors). For an object that fits the sensors badly, the first bracket holds far more than
+    n_max tuples, and this takes one or two probes where bisection took several.
     """
     cap = 4 * n_max
     lo, delta = 0.0, min(delta_first, delta_max)
     while True:
         tuples, errors, complete = join(delta, cap)
+        seen = tuples.shape[0]  # the most tuples one probe found: more than n_max means capped
         if not complete or tuples.shape[0] >= n_max:
             hi = delta
             break
@@ -419,16 +424,19 @@ def _best_n(join, n_max: int, delta_first: float, delta_max: float) -> DistanceS
     while not complete:
         if hi - lo < 1e-10:  # a pathological pile of equal errors: take them all, then the lowest
             tuples, errors, complete = join(hi, None)
+            seen = max(seen, tuples.shape[0])
             break
-        mid = 0.5 * (lo + hi)
-        t, e, c = join(mid, cap)
+        # errors: more than n_max tuples, all below hi (the last early-stopped probe's).
+        bound = float(np.nextafter(np.partition(errors, n_max - 1)[n_max - 1], np.inf))
+        probe = bound if bound < hi else 0.5 * (lo + hi)
+        t, e, c = join(probe, cap)
         if c and t.shape[0] < n_max:
-            lo = mid
+            lo = probe
         else:
-            hi, tuples, errors, complete = mid, t, e, c
-    capped = tuples.shape[0] > n_max
+            hi, tuples, errors, complete = probe, t, e, c
+            seen = max(seen, t.shape[0])
     tuples, errors = _lowest(tuples, errors, n_max)
-    return DistanceSelection(tuples, errors, float(errors.max()), capped)
+    return DistanceSelection(tuples, errors, float(errors.max()), seen > n_max)
 
 
 def select_tuples(

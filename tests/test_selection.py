@@ -242,6 +242,33 @@ def test_best_n_keeps_the_nearest_tuple_that_the_paper_rule_drops():
     assert any(np.array_equal(row, true) for row in enough.tuples)
 
 
+@pytest.mark.parametrize("n_max", [1, 20, 300])
+def test_best_n_is_exact_when_probes_stop_early(monkeypatch, n_max):
+    # A badly fitting object: database points within about a centimetre, sensors 4.5 cm apart, so every
+    # tuple's error lies in a narrow band. Doubling delta_d finds none, then nearly all at once, and with
+    # small join chunks that probe stops early (past 4 N tuples): the case the shrinking bound of
+    # _best_n works from.
+    monkeypatch.setattr(sel, "_JOIN_CHUNK", 50)
+    rng = np.random.default_rng(n_max)
+    points = rng.normal(scale=0.005, size=(60, 3))
+    s = 0.045 / np.sqrt(3) * np.array([[1.0, 0, 0], [-0.5, np.sqrt(3) / 2, 0], [-0.5, -np.sqrt(3) / 2, 0]])
+    omegas = [rng.choice(60, 40, replace=False) for _ in range(3)]
+    probes = []
+    real_join = sel._join
+
+    def recording_join(*args, **kwargs):
+        probes.append(found := real_join(*args, **kwargs))
+        return found
+
+    monkeypatch.setattr(sel, "_join", recording_join)
+    result = sel.select_tuples(points, s, omegas, n_max, rng=rng, rule="best_n", **SELECT)
+    assert any(not complete for _, _, complete in probes)  # the case under test did occur
+    expected, errors, n_all = _brute_lowest(points, s, omegas, n_max)
+    np.testing.assert_array_equal(result.tuples, expected)
+    np.testing.assert_array_equal(result.errors, errors)
+    assert result.capped == (n_all > n_max)
+
+
 def test_best_n_with_fewer_tuples_than_n_keeps_all_below_delta_max():
     rng = np.random.default_rng(2)
     points, _true, s = _scene(rng, 20, 3)
