@@ -70,7 +70,9 @@ class DistanceSelection:
 
     tuples (T, L) int64 database indices, rows in lexicographic order; errors (T,) their mean pair
     distance error (m); delta_d the threshold the adaptive rule stopped at (m); capped: True when more
-    than ``n_max`` tuples passed ``delta_d`` and only the ``n_max`` lowest-error ones were kept.
+    than ``n_max`` tuples passed ``delta_d`` and only the ``n_max`` lowest-error ones were kept (rule
+    best_n: when one of the thresholds it tried, all below delta_max, passed more than ``n_max``; it
+    may miss that more exist when the last one passed exactly ``n_max``).
     """
 
     tuples: np.ndarray
@@ -393,11 +395,21 @@ def _lowest(tuples: np.ndarray, errors: np.ndarray, n: int) -> tuple[np.ndarray,
     return _sorted_rows(tuples[order], errors[order])
 
 
-def _best_n(join, n_max: int, delta_first: float, delta_max: float) -> DistanceSelection:
+def _growth(count: int, n_max: int, n_pairs: int) -> float:
+    """How much to raise delta_d after a complete probe that found ``count`` < n_max tuples: towards where
+    about 2 n_max pass, the count growing about as delta_d ** n_pairs (one slab of width ~delta_d per
+    sensor pair), by 1.25 to 4 times; 3 times when it found none. Only a guess for the next probe, which
+    saves probes (each a join): the result does not depend on it."""
+    if count == 0:
+        return 3.0
+    return float(np.clip((2.0 * n_max / count) ** (1.0 / n_pairs), 1.25, 4.0))
+
+
+def _best_n(join, n_max: int, delta_first: float, delta_max: float, n_pairs: int) -> DistanceSelection:
     """Rule best_n: the n_max tuples of lowest mean error (< delta_max), ties by index order.
 
-    count(delta) = #tuples with error < delta grows with delta. Doubling from ``delta_first`` finds an
-    upper bracket with at least n_max tuples (or stops at delta_max). A probe stops early once it has
+    count(delta) = #tuples with error < delta grows with delta. Raising delta from ``delta_first``
+    (``_growth``) finds an upper bracket with at least n_max tuples (or stops at delta_max). A probe stops early once it has
     seen more than 4 n_max tuples; the n_max-th lowest error among those it saw is an upper bound on the
     n_max-th lowest overall, so the next probe goes just above it, where at least n_max tuples pass. The
     bracket narrows until a probe completes; bisection takes over when the bound does not shrink (a pile
@@ -420,7 +432,7 @@ def _best_n(join, n_max: int, delta_first: float, delta_max: float) -> DistanceS
                 )
             tuples, errors = _sorted_rows(tuples, errors)
             return DistanceSelection(tuples, errors, float(errors.max()), False)
-        lo, delta = delta, min(2.0 * delta, delta_max)
+        lo, delta = delta, min(delta * _growth(tuples.shape[0], n_max, n_pairs), delta_max)
     while not complete:
         if hi - lo < 1e-10:  # a pathological pile of equal errors: take them all, then the lowest
             tuples, errors, complete = join(hi, None)
@@ -483,7 +495,7 @@ def select_tuples(
         return _join(points, s, omegas, tables, delta, stop_after)
 
     if rule == "best_n":
-        return _best_n(join, n_max, step_up, delta_max)
+        return _best_n(join, n_max, step_up, delta_max, s.shape[0] * (s.shape[0] - 1) // 2)
 
     # The descending grid delta_start - k * step_down, down to its first non-positive value. The
     # reference stops at the first value with at most n_max tuples, which (the count growing with
