@@ -409,12 +409,13 @@ def _best_n(join, n_max: int, delta_first: float, delta_max: float, n_pairs: int
     """Rule best_n: the n_max tuples of lowest mean error (< delta_max), ties by index order.
 
     count(delta) = #tuples with error < delta grows with delta. Raising delta from ``delta_first``
-    (``_growth``) finds an upper bracket with at least n_max tuples (or stops at delta_max). A probe stops early once it has
-    seen more than 4 n_max tuples; the n_max-th lowest error among those it saw is an upper bound on the
-    n_max-th lowest overall, so the next probe goes just above it, where at least n_max tuples pass. The
-    bracket narrows until a probe completes; bisection takes over when the bound does not shrink (a pile
-    of equal errors). For an object that fits the sensors badly, the first bracket holds far more than
-    n_max tuples, and this takes one or two probes where bisection took several.
+    (``_growth``) finds an upper bracket with at least n_max tuples (or stops at delta_max). A probe
+    stops early once it has seen more than 4 n_max tuples; the n_max-th lowest error among those it saw
+    is an upper bound on the n_max-th lowest overall, so the next probe goes just above it, where at
+    least n_max tuples pass. The bracket narrows until a probe completes; bisection takes over when the
+    bound does not shrink (a pile of equal errors). For an object that fits the sensors badly, the first
+    bracket holds far more than n_max tuples, and this takes one or two probes where bisection took
+    several (timings: docs/speed.md).
     """
     cap = 4 * n_max
     lo, delta = 0.0, min(delta_first, delta_max)

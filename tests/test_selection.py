@@ -245,7 +245,7 @@ def test_best_n_keeps_the_nearest_tuple_that_the_paper_rule_drops():
 @pytest.mark.parametrize("n_max", [1, 20, 300])
 def test_best_n_is_exact_when_probes_stop_early(monkeypatch, n_max):
     # A badly fitting object: database points within about a centimetre, sensors 4.5 cm apart, so every
-    # tuple's error lies in a narrow band. Doubling delta_d finds none, then nearly all at once, and with
+    # tuple's error lies in a narrow band. Raising delta_d finds none, then nearly all at once, and with
     # small join chunks that probe stops early (past 4 N tuples): the case the shrinking bound of
     # _best_n works from.
     monkeypatch.setattr(sel, "_JOIN_CHUNK", 50)
