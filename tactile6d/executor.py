@@ -2,7 +2,8 @@
 
 A stage splits its loop into independent tasks and hands them to an ``Executor``:
 ``executor.map(fn, *iterables)`` calls ``fn(*args)`` for each tuple of ``zip(*iterables)`` and returns
-the results **in input order**, whichever worker finished first. DVC stays the orchestrator and the
+the results **in input order**, whichever worker finished first; ``executor.completed(fn, *iterables)``
+yields ``(index, result)`` as each task finishes, for a caller that acts before the last one is in. DVC stays the orchestrator and the
 cache: the executor only spreads the work inside one stage, and where the work ran never changes a
 result (so config section ``executor`` is no DVC parameter of any stage).
 
@@ -31,7 +32,7 @@ import hashlib
 import multiprocessing
 import pickle
 import threading
-from collections.abc import Callable, Hashable, Iterable, Mapping
+from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping
 from typing import Any, TypeVar
 
 from tqdm import tqdm
@@ -100,11 +101,23 @@ def _run_task(init: tuple[str, Callable, tuple] | None, fn: Callable, args: tupl
 class Executor:
     """Runs independent tasks and returns their results in input order; a context manager (``close``)."""
 
-    def map(self, fn: Callable[..., T], *iterables: Iterable, desc: str | None = None) -> list[T]:
-        """``[fn(*args) for args in zip(*iterables)]``, computed by the workers; with ``desc``, a tqdm bar
-        over the tasks as they finish. The first task that raises stops the map: the others are
-        cancelled and its exception (the original type, e.g. a ``Tactile6dError``) is raised here."""
+    def completed(self, fn: Callable[..., T], *iterables: Iterable,
+                  desc: str | None = None) -> Iterator[tuple[int, T]]:
+        """``(i, fn(*args_i))`` for each ``args_i`` of ``zip(*iterables)``, as the workers finish them: in
+        any order (input order when the tasks run in this process, each one when the iterator is
+        advanced). With ``desc``, a tqdm bar over the tasks as they finish. The first task that raises
+        stops it: the others are cancelled and its exception (the original type) is raised here; so are
+        the tasks not yet finished when the caller stops iterating (closes the generator)."""
         raise NotImplementedError
+
+    def map(self, fn: Callable[..., T], *iterables: Iterable, desc: str | None = None) -> list[T]:
+        """``[fn(*args) for args in zip(*iterables)]``, computed by the workers (``completed``, put back in
+        input order)."""
+        tasks = list(zip(*iterables))
+        out: list = [None] * len(tasks)
+        for i, result in self.completed(fn, *zip(*tasks), desc=desc):
+            out[i] = result
+        return out
 
     def describe(self) -> str:
         """One line saying where the tasks run, for a stage's log."""
@@ -128,8 +141,8 @@ class LocalExecutor(Executor):
     """``workers`` processes of this machine; 1 runs every task in this process.
 
     initializer(*initargs): run once in each worker process before its first task; with 1 worker, once
-    in this process before the first task of the first ``map``. The pool starts at the first ``map``
-    with more than one worker and is reused by later ones.
+    in this process before the first task. The pool starts with the first tasks given to more than one
+    worker and is reused by later ones.
     """
 
     def __init__(self, workers: int, initializer: Callable | None = None, initargs: tuple = ()):
@@ -140,35 +153,33 @@ class LocalExecutor(Executor):
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         self._initialized = False
 
-    def map(self, fn, *iterables, desc=None):
+    def completed(self, fn, *iterables, desc=None):
         tasks = list(zip(*iterables))
         if self.workers == 1:
             if self.initializer is not None and not self._initialized:
                 self.initializer(*self.initargs)
                 self._initialized = True
-            out = []
             with _progress(len(tasks), desc) as bar:
-                for args in tasks:
-                    out.append(fn(*args))
+                for i, args in enumerate(tasks):
+                    result = fn(*args)
                     bar.update(1)
-            return out
+                    yield i, result
+            return
         if self._pool is None:
             self._pool = concurrent.futures.ProcessPoolExecutor(
                 self.workers, mp_context=multiprocessing.get_context("spawn"),
                 initializer=self.initializer, initargs=self.initargs)
         futures = [self._pool.submit(fn, *args) for args in tasks]
         index = {future: i for i, future in enumerate(futures)}
-        out = [None] * len(tasks)
         try:
             with _progress(len(tasks), desc) as bar:
                 for future in concurrent.futures.as_completed(futures):
-                    out[index[future]] = future.result()
+                    result = future.result()
                     bar.update(1)
-        except BaseException:
+                    yield index[future], result
+        finally:  # a task raised or the caller stopped early: drop what has not started
             for future in futures:
                 future.cancel()
-            raise
-        return out
 
     def describe(self) -> str:
         return "this process" if self.workers == 1 else f"{self.workers} local worker processes"
@@ -203,22 +214,22 @@ class DaskExecutor(Executor):
         token = _initializer_token(initializer, initargs)
         self._init = None if token is None else (token, initializer, tuple(initargs))
 
-    def map(self, fn, *iterables, desc=None):
+    def completed(self, fn, *iterables, desc=None):
         from distributed import as_completed
 
         tasks = list(zip(*iterables))
         futures = [self.client.submit(_run_task, self._init, fn, args, pure=False) for args in tasks]
         index = {future.key: i for i, future in enumerate(futures)}
-        out = [None] * len(tasks)
+        finished = False
         try:
             with _progress(len(tasks), desc) as bar:
                 for future, result in as_completed(futures, loop=self.client.loop, with_results=True):
-                    out[index[future.key]] = result
                     bar.update(1)
-        except BaseException:
-            self.client.cancel(futures)
-            raise
-        return out
+                    yield index[future.key], result
+            finished = True
+        finally:
+            if not finished:  # a task raised or the caller stopped early
+                self.client.cancel(futures)
 
     def describe(self) -> str:
         threads = self.client.nthreads()  # worker address -> its threads

@@ -35,6 +35,14 @@ def task(i, x):
     return i, x * x, os.getpid(), list(_INITIALIZED), value
 
 
+_CALLS = []  # per process: the arguments ``record`` was called with
+
+
+def record(i):
+    _CALLS.append(i)
+    return i
+
+
 def failing(i):
     if i == 3:
         raise InputError(f"task {i} refuses")
@@ -58,10 +66,12 @@ def fresh_process_state():
     ex.clear_process_cache()
     _INITIALIZED.clear()
     _MADE.clear()
+    _CALLS.clear()
     yield
     ex.clear_process_cache()
     _INITIALIZED.clear()
     _MADE.clear()
+    _CALLS.clear()
 
 
 def test_one_local_worker_runs_in_this_process(fresh_process_state):
@@ -73,6 +83,17 @@ def test_one_local_worker_runs_in_this_process(fresh_process_state):
     assert pool.describe() == "this process"
 
 
+def test_completed_hands_each_result_over_as_it_is_made(fresh_process_state):
+    """In this process the tasks run in order, each when the caller asks for the next result."""
+    with ex.LocalExecutor(1) as pool:
+        results = pool.completed(record, range(5))
+        assert next(results) == (0, 0) and _CALLS == [0]
+        assert next(results) == (1, 1) and _CALLS == [0, 1]
+        results.close()  # the caller stops: the rest never runs
+        assert _CALLS == [0, 1]
+        assert list(pool.completed(record, [7, 8])) == [(0, 7), (1, 8)]
+
+
 def test_two_local_workers_give_the_same_results_in_order(fresh_process_state):
     n = 24
     with ex.LocalExecutor(2, initializer, ("tag",)) as pool:
@@ -81,7 +102,14 @@ def test_two_local_workers_give_the_same_results_in_order(fresh_process_state):
         with pytest.raises(InputError, match="task 3 refuses"):  # the task's own error, in this process
             pool.map(failing, range(8))
         assert [r[0] for r in pool.map(task, range(3), range(3))] == [0, 1, 2]  # and the pool still works
+        finished = dict(pool.completed(task, range(n), range(n)))  # index -> result, in finishing order
+        early = pool.completed(task, range(n), range(n))
+        first, _ = next(early)
+        early.close()  # stopping early cancels what has not started; the pool goes on
+        assert [r[0] for r in pool.map(task, range(3), range(3))] == [0, 1, 2]
     check_results(results, n)
+    assert sorted(finished) == list(range(n)) and 0 <= first < n
+    assert [finished[i][:2] for i in range(n)] == [r[:2] for r in results]
     assert os.getpid() not in {r[2] for r in results}
     assert _INITIALIZED == [] and _MADE == []  # nothing ran here
     with ex.LocalExecutor(1) as pool:
@@ -140,10 +168,12 @@ def test_dask_gives_the_local_results_in_order(dask_cluster, fresh_process_state
         assert "2 workers, 2 threads" in pool.describe()
         results = pool.map(task, range(n), range(n), desc="dask")
         again = pool.map(task, [5, 5], [5, 5])  # equal arguments are two tasks, not one
+        finished = dict(pool.completed(task, range(6), range(6)))
         with pytest.raises(InputError, match="task 3 refuses"):
             pool.map(failing, range(8))
     check_results(results, n)
     assert [r[:2] for r in again] == [(5, 25), (5, 25)]
+    assert {i: r[:2] for i, r in finished.items()} == {i: (i, i * i) for i in range(6)}
     assert os.getpid() not in {r[2] for r in results}
     with ex.LocalExecutor(1, initializer, ("tag",)) as pool:
         assert [r[:2] for r in pool.map(task, range(n), range(n))] == [r[:2] for r in results]

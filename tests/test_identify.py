@@ -13,6 +13,7 @@ from tactile6d.cli import main as cli_main
 from tactile6d.config import compose_config
 from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.estimator import Estimator
+from tactile6d.executor import Executor
 from tactile6d.identifier import Identifier, load_weights
 from tactile6d.sensor import sensor_poses_touching
 from tactile6d.settings import Settings
@@ -153,6 +154,55 @@ def test_the_box_of_the_right_width_wins_over_wider_and_narrower_ones(squeezed, 
     assert position_error < 0.005
     if method == "ours":
         assert encoder.calls == 1  # the images were encoded once for the three objects
+
+
+class FinishingInOrder(Executor):
+    """Screens in this process and hands the candidates back in ``order``, as workers that finished in
+    that order would (``Executor.completed``)."""
+
+    def __init__(self, identifier, order):
+        self.identifier, self.order = identifier, order
+
+    def completed(self, fn, sources, names, T_sensors, encodings, desc=None):
+        found = [self.identifier.candidate(*args) for args in zip(names, T_sensors, encodings)]
+        for i in self.order:
+            yield i, found[i]
+
+    def describe(self):
+        return "in this process, in a chosen order"
+
+
+@pytest.mark.parametrize("order, guess_wins", [([1, 0, 2], True), ([0, 2, 1], False)])
+def test_the_guess_at_the_winner_changes_nothing(squeezed, monkeypatch, order, guess_wins):
+    """A spread screen makes the full estimate of the object leading when one is left to screen. When the
+    winner (box_100mm, index 1) is in by then, that estimate is the refinement; when it comes last, the
+    guess is a wrong box and the winner is estimated after. Either way the same identification."""
+    T_sensors, angles = squeezed
+    settings = landmark_settings(**{"select.method": "ours"})
+    library = {f"box_{round(w * 1000)}mm": box_estimator(w, FaceAngleEncoder(angles), settings)
+               for w in (0.09, 0.10, 0.115)}
+    images = np.zeros((3, 320, 240, 3), np.uint8)
+    identifier = Identifier(library, weights=np.array([1.0, 1.0, 1.0]), screen=SCREEN)
+    plain = identifier.identify(T_sensors, images)
+    assert plain.best.name == "box_100mm" and all(o.candidate.matched for o in plain.objects)
+    assert plain.seconds["guess"] == 0.0  # in one process there is nothing to overlap
+
+    made = []
+    full_estimate = Identifier._full_estimate
+    monkeypatch.setattr(Identifier, "_full_estimate",
+                        lambda self, name, *args: made.append(name) or full_estimate(self, name, *args))
+    identifier.spread(FinishingInOrder(identifier, order), source=None)
+    result = identifier.identify(T_sensors, images)
+    if guess_wins:
+        assert made == ["box_100mm"] and result.seconds["guess"] > 0
+    else:
+        assert len(made) == 2 and made[0] != "box_100mm" and made[1] == "box_100mm"
+    assert result.refined == plain.refined
+    assert [o.name for o in result.objects] == [o.name for o in plain.objects]
+    for a, b in zip(plain.objects, result.objects):
+        assert a.probability == b.probability
+        np.testing.assert_array_equal(a.pose, b.pose)
+    np.testing.assert_array_equal(result.best.candidate.estimate.poses, plain.best.candidate.estimate.poses)
 
 
 def test_an_identifier_without_weights_only_screens(squeezed):

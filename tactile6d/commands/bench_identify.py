@@ -25,7 +25,7 @@ from tactile6d.errors import InputError
 from tactile6d.identifier import Identifier
 from tactile6d.optimize import use_cpu_devices_for
 
-STEPS = ("encode", "objects", "refine", "total")
+STEPS = ("encode", "objects", "guess", "refine", "total")
 
 
 def main(argv: list[str]) -> int:
