@@ -25,7 +25,7 @@ import dataclasses
 import json
 import time
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -286,12 +286,21 @@ class Identifier:
         """Every object's screened candidate, in library order: in this process, or through the executor
         of ``spread`` (identify.workers > 1 or a Dask cluster's ``executor.address``; the same results,
         see the tests)."""
-        T = check_sensor_poses(T_world_sensors)
+        found: list = [None] * len(self.names)
+        for i, candidate in self._screened(check_sensor_poses(T_world_sensors), encoding):
+            found[i] = candidate
+        return found
+
+    def _screened(self, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Iterator[tuple[int, Candidate]]:
+        """(library index, screened candidate) of every object, as each is made: in library order in this
+        process, in the order they finish through the executor of ``spread``."""
         if self._executor is None:
-            return [self.candidate(n, T, encoding) for n in self.names]
+            yield from ((i, self.candidate(name, T_world_sensors, encoding)) for i, name in enumerate(self.names))
+            return
         # One object per task: which object is slow depends on the scene, and a free worker takes the next.
         n = len(self.names)
-        return self._executor.map(screen_task, [self._source] * n, self.names, [T] * n, [encoding] * n)
+        yield from self._executor.completed(screen_task, [self._source] * n, self.names, [T_world_sensors] * n,
+                                            [encoding] * n)
 
     def close(self) -> None:
         """Release the executor of ``spread``, if any (its worker processes, a cluster connection); the
@@ -365,14 +374,13 @@ class Identifier:
         """
         if self._executor is None or not self.refine_best:
             return self.screen(T_world_sensors, encoding), None, 0.0
-        n = len(self.names)
-        found: list[Candidate | None] = [None] * n
+        found: list[Candidate | None] = [None] * len(self.names)
+        left = len(self.names)
         guess, seconds = None, 0.0
-        tasks = self._executor.completed(screen_task, [self._source] * n, self.names, [T_world_sensors] * n,
-                                         [encoding] * n)
-        for i, candidate in tasks:
+        for i, candidate in self._screened(T_world_sensors, encoding):
             found[i] = candidate
-            if sum(c is None for c in found) == 1:
+            left -= 1
+            if left == 1:
                 leader = self._leader(found)
                 if leader is not None:
                     t0 = time.perf_counter()
