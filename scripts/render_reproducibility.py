@@ -36,6 +36,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from tactile6d.instruction_sets import pinned_environment  # noqa: E402 (imports nothing heavy)
+
 # The database images: two YCB objects prepared as prepare_object does, and a superquadric like the
 # training set's. Per mesh, this many evenly spread surface points (sample_surface's sampler), each with
 # a random roll and the database's press depth.
@@ -49,10 +51,13 @@ SEED = 20261122
 SETTINGS: dict[str, tuple[dict[str, str], dict[str, object]]] = {
     "default": ({}, {}),
     "repeat": ({}, {}),  # the default again: the run-to-run noise floor (should be none)
+    "unpinned": ({}, {"unpinned": True}),  # without tactile6d.instruction_sets: each library's own pick
     "workers-2": ({}, {"workers": 2}),
     "embree-sse2": ({"EMBREE_CONFIG": "isa=sse2"}, {}),
     "embree-sse4.2": ({"EMBREE_CONFIG": "isa=sse4.2"}, {}),
     "embree-avx": ({"EMBREE_CONFIG": "isa=avx"}, {}),
+    "embree-avx2": ({"EMBREE_CONFIG": "isa=avx2"}, {}),
+    "embree-avx512": ({"EMBREE_CONFIG": "isa=avx512"}, {}),  # only on a CPU with AVX-512
     "embree-threads-1": ({"EMBREE_CONFIG": "threads=1"}, {}),
     "numpy-no-x86v3": ({"NPY_DISABLE_CPU_FEATURES": "X86_V3"}, {}),
     "opencv-no-avx": ({"OPENCV_CPU_DISABLE": "AVX2,FP16,FMA3,AVX"}, {}),
@@ -66,14 +71,6 @@ SETTINGS: dict[str, tuple[dict[str, str], dict[str, object]]] = {
         {"NPY_DISABLE_CPU_FEATURES": "X86_V3", "OPENCV_CPU_DISABLE": "AVX2,FP16,FMA3,AVX,POPCNT,SSSE3"},
         {"cv_optimized": False, "cv_threads": 1},
     ),
-    "refine": ({}, {"refine": True}),
-    "refine+embree-sse2": ({"EMBREE_CONFIG": "isa=sse2"}, {"refine": True}),
-    "refine+embree-avx": ({"EMBREE_CONFIG": "isa=avx"}, {"refine": True}),
-    "refine+openblas-prescott": ({"OPENBLAS_CORETYPE": "Prescott"}, {"refine": True}),
-    "refine+numpy-opencv-low": (
-        {"NPY_DISABLE_CPU_FEATURES": "X86_V3", "OPENCV_CPU_DISABLE": "AVX2,FP16,FMA3,AVX,POPCNT,SSSE3"},
-        {"refine": True, "cv_optimized": False, "cv_threads": 1},
-    ),
     "all-low": (
         {
             "EMBREE_CONFIG": "isa=sse2",
@@ -84,6 +81,8 @@ SETTINGS: dict[str, tuple[dict[str, str], dict[str, object]]] = {
         {"cv_optimized": False},
     ),
 }
+# Embree's ISA names, lowest first, and the CPU flag (/proc/cpuinfo) each needs.
+EMBREE_ISAS = {"sse2": "sse2", "sse4.2": "sse4_2", "avx": "avx", "avx2": "avx2", "avx512": "avx512vl"}
 
 _SHIM_SOURCE = r"""
 #define _GNU_SOURCE
@@ -176,48 +175,10 @@ def render_set(data: Path, contacts: int = CONTACTS_PER_MESH, objects=YCB_OBJECT
             "poses": np.concatenate(all_poses)}
 
 
-def refined_first_hits(self, triangles: np.ndarray, rays: np.ndarray):
-    """The proposed fix of ``render._RayCaster.first_hits``: Embree picks the triangle, NumPy computes t, u, v.
-
-    Embree's t, u, v are float32 and rounded differently by each of its ISA kernels (SSE2, AVX, AVX2,
-    AVX-512 intersectors); recomputing them in float64 from the triangle Embree reports (Moeller-Trumbore,
-    elementwise NumPy arithmetic, correctly rounded on every CPU) leaves only the choice of triangle to
-    Embree. u and v are rounded to float32 as Embree returns them, so the shading code is unchanged.
-    """
-    t, prim, u, v = _EMBREE_FIRST_HITS(self, triangles, rays)
-    hit = np.nonzero(prim >= 0)[0]
-    corners = triangles[prim[hit]] - CAMERA_POSITION_  # (m, 3, 3), camera at the origin
-    d = rays[hit].astype(np.float32).astype(np.float64)  # the rays Embree traced
-    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    s = -corners[:, 0]
-    p, q = np.cross(d, e2), np.cross(s, e1)
-    inv_det = 1.0 / _dot_rows(e1, p)
-    t[hit] = _dot_rows(e2, q) * inv_det
-    u[hit] = (_dot_rows(s, p) * inv_det).astype(np.float32)
-    v[hit] = (_dot_rows(d, q) * inv_det).astype(np.float32)
-    return t, prim, u, v
-
-
-def _dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(m, 3) . (m, 3) -> (m,), written out so that the summation order is fixed."""
-    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
-
-
-_EMBREE_FIRST_HITS = None
-CAMERA_POSITION_ = None
-
-
 def apply_switches(switches: dict) -> None:
-    """In-process settings that have no environment variable (OpenCV's optimisation switch, its threads,
-    the proposed Embree fix)."""
+    """In-process settings that have no environment variable (OpenCV's optimisation switch, its threads)."""
     import cv2
 
-    global _EMBREE_FIRST_HITS, CAMERA_POSITION_
-    if switches.get("refine"):
-        from tactile6d import render
-
-        _EMBREE_FIRST_HITS, CAMERA_POSITION_ = render._RayCaster.first_hits, render.CAMERA_POSITION
-        render._RayCaster.first_hits = refined_first_hits
     if "cv_optimized" in switches:
         cv2.setUseOptimized(bool(switches["cv_optimized"]))
     if "cv_threads" in switches:
@@ -225,6 +186,21 @@ def apply_switches(switches: dict) -> None:
 
 
 # --- running settings in subprocesses -------------------------------------------------------------------
+
+
+def cpu_flags() -> set[str]:
+    """This CPU's feature flags (/proc/cpuinfo; empty where there is none)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return set()
+    return {flag for line in text.splitlines() if line.startswith("flags") for flag in line.split(":", 1)[1].split()}
+
+
+def embree_isas_here() -> list[str]:
+    """Embree's ISA names this CPU can run, lowest first."""
+    flags = cpu_flags()
+    return [isa for isa, flag in EMBREE_ISAS.items() if flag in flags]
 
 
 def embree_library() -> Path:
@@ -250,13 +226,16 @@ def build_shim(directory: Path) -> Path | None:
 
 
 def setting_environment(name: str, shim: Path | None, data: Path | None = None) -> dict[str, str]:
-    """The environment a setting's child runs in: this one, with the setting's variables."""
-    env_vars, _ = SETTINGS[name]
+    """The environment a setting's child runs in: this one, with the setting's variables, then capped at
+    AVX2 as the pipeline's stages are (``tactile6d.instruction_sets``; a setting's lower level stays)."""
+    env_vars, switches = SETTINGS[name]
     env = dict(os.environ)
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
     if data is not None:
         env["TACTILE6D_DATA"] = str(data)
     env.update(env_vars)
+    if not switches.get("unpinned"):
+        env = pinned_environment(env)
     if "EMBREE_CONFIG" in env_vars:
         if shim is None:
             raise RuntimeError(f"setting {name} needs a C compiler for the Embree shim")

@@ -31,10 +31,12 @@ from __future__ import annotations
 
 import concurrent.futures
 import inspect
+import math
 import multiprocessing
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from fractions import Fraction
 
 import cv2
 import numpy as np
@@ -161,7 +163,7 @@ def pixel_rays(width: int, height: int, step: int = 1) -> np.ndarray:
     -> (height // step, width // step, 3). With ``step`` > 1, one ray through the centre of each
     ``step`` x ``step`` block. Row 0 looks toward +z, column 0 toward +y.
     """
-    focal = (height / 2.0) / np.tan(CAMERA_YFOV / 2.0)  # pixels; square pixels, as in pyrender
+    focal = (height / 2.0) / math.tan(CAMERA_YFOV / 2.0)  # pixels; square pixels, as in pyrender
     rows = (np.arange(height // step) + 0.5) * step
     cols = (np.arange(width // step) + 0.5) * step
     v = -(rows - height / 2.0) / focal
@@ -204,10 +206,14 @@ def gel_surface(rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def shade(points: np.ndarray, normals: np.ndarray, light_intensity: float) -> np.ndarray:
     """pyrender's metallic-roughness shading of a grey surface lit by the three DIGIT lights.
 
-    points (3, m), unit normals (3, m): component rows x, y, z in the DIGIT frame -> (3, m) float32 in
-    [0, 1], row i lit by light i (R, G, B) only. Gamma 1/2.2 and clipping as pyrender's fragment shader.
+    points (3, m), unit normals (3, m): component rows x, y, z in the DIGIT frame -> (3, m) float32 linear
+    radiance (before gamma and clipping, which ``to_8bit`` applies), row i lit by light i (R, G, B) only.
     (Rows of components, not (m, 3): NumPy's elementwise arithmetic on rows is several times faster than
     reductions over a short last axis.)
+
+    Only +, -, *, / and sqrt, which IEEE 754 rounds correctly on every SIMD path: NumPy's ``power`` (and
+    its exp, log, tan...) take other code paths with AVX-512 and differ in the last bit, which moved
+    framebuffer levels between machines (docs/reproducibility.md, Across machines).
     """
     p = np.asarray(points, dtype=np.float32)
     n = np.asarray(normals, dtype=np.float32)
@@ -229,13 +235,13 @@ def shade(points: np.ndarray, normals: np.ndarray, light_intensity: float) -> np
         nl = np.clip(_dot3(n, to_light), 0.001, 1.0)
         nh = np.clip(_dot3(n, half), 0.0, 1.0)
         vh = np.clip(_dot3(view, half), 0.0, 1.0)
-        fresnel = f0 + (1.0 - f0) * (1.0 - vh) ** 5
+        one_minus_vh = 1.0 - vh
+        fresnel = f0 + (1.0 - f0) * (one_minus_vh * one_minus_vh) * (one_minus_vh * one_minus_vh) * one_minus_vh
         geometric = g_view * nl / (nl * (1.0 - k) + k)
         distribution = alpha2 / (np.pi * (nh * nh * (alpha2 - 1.0) + 1.0) ** 2)
         brdf = (1.0 - fresnel) * (c_diff / np.pi) + fresnel * geometric * distribution / (4.0 * nl * nv + 0.001)
         out[i] = nl * (light_intensity / dist2) * brdf
-    np.power(out, 1.0 / 2.2, out=out)
-    return np.clip(out, 0.0, 1.0, out=out)
+    return out
 
 
 def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -243,9 +249,28 @@ def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def to_8bit(color: np.ndarray) -> np.ndarray:
-    """[0, 1] floats -> 0..255 floats rounded as a framebuffer stores them."""
-    return np.round(color * 255.0)
+def _gamma_level_bounds() -> np.ndarray:
+    """(255,) float64: the fifth power of the linear radiance at which each 8-bit level k + 1 begins.
+
+    Level k is ``round(255 * x ** (1 / 2.2))``; it rises past k where ``x ** (5 / 11) = (k + 0.5) / 255``,
+    i.e. ``x ** 5 = ((k + 0.5) / 255) ** 11``: computed exactly with rationals, then rounded once.
+    """
+    return np.array([float(Fraction(2 * k + 1, 510) ** 11) for k in range(255)])
+
+
+_GAMMA_LEVEL_BOUNDS = _gamma_level_bounds()
+
+
+def to_8bit(radiance: np.ndarray) -> np.ndarray:
+    """Linear radiance (``shade``) -> 0..255 float32 levels as pyrender's framebuffer stores them.
+
+    Gamma 1/2.2, clipping to [0, 1] and rounding to the nearest level, done without ``power``: the level
+    is the number of bounds (``_gamma_level_bounds``) that ``x ** 5`` reaches, and ``x ** 5`` is four
+    float64 products, rounded the same way on every CPU. Negative radiance (none in practice) is level 0.
+    """
+    x = np.maximum(np.asarray(radiance, dtype=np.float64), 0.0)
+    fifth = (x * x) * (x * x) * x
+    return np.searchsorted(_GAMMA_LEVEL_BOUNDS, fifth, side="right").astype(np.float32)
 
 
 # --- the object's part in front of the gel ---------------------------------------------------------------
@@ -295,19 +320,60 @@ class _RayCaster:
         self._device = embree_rtcore.EmbreeDevice()
 
     def first_hits(self, triangles: np.ndarray, rays: np.ndarray, t_max: np.ndarray | None = None):
-        """triangles (k, 3, 3), rays (n, 3) from CAMERA_POSITION -> t (n,), face (n,) or -1, u (n,), v (n,).
+        """triangles (k, 3, 3), rays (n, 3) from CAMERA_POSITION -> t (n,) float64, face (n,) or -1,
+        u (n,) float32, v (n,) float32.
 
         The hit point is ``CAMERA_POSITION + t * ray``; (u, v) are barycentric weights of corners 1 and 2.
         t_max (n,) float32, optional: Embree stops each ray there, so a first hit beyond it comes back as
         a miss (face -1), and one up to it is the same hit as without the limit.
+
+        Embree only picks the triangle: its own t, u, v are float32 values that each of its intersection
+        kernels (SSE2, AVX, AVX2, AVX-512, chosen for the CPU) rounds its own way, which moved a few
+        pixels by one grey level between machines. They are recomputed here in float64 from the triangle
+        Embree reports (``ray_triangle_hits``), and u, v rounded to float32 as Embree returns them.
         """
         scene = rtcore_scene.EmbreeScene(self._device)
         # Embree works in float32: shift to the camera so coordinates stay small and precise.
-        TriangleMesh(scene, (triangles - CAMERA_POSITION).astype(np.float32))
+        corners = (triangles - CAMERA_POSITION).astype(np.float32)
+        TriangleMesh(scene, corners)
         origins = np.zeros((len(rays), 3), dtype=np.float32)
+        directions = rays.astype(np.float32)
         dists = None if t_max is None else np.asarray(t_max, dtype=np.float32)
-        out = scene.run(origins, rays.astype(np.float32), dists=dists, output=1)
-        return out["tfar"].astype(np.float64), out["primID"], out["u"], out["v"]
+        face = scene.run(origins, directions, dists=dists, output=1)["primID"]
+        t = np.full(len(rays), np.inf)
+        u, v = np.zeros(len(rays), dtype=np.float32), np.zeros(len(rays), dtype=np.float32)
+        hit = np.nonzero(face >= 0)[0]
+        # The float32 corners and rays Embree traced, so that the hit is on the triangle it chose.
+        t[hit], hit_u, hit_v = ray_triangle_hits(corners[face[hit]].astype(np.float64), directions[hit].astype(np.float64))
+        u[hit], v[hit] = hit_u.astype(np.float32), hit_v.astype(np.float32)
+        return t, face, u, v
+
+
+def ray_triangle_hits(corners: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where rays from the origin meet the planes of their triangles (Moeller-Trumbore, float64).
+
+    corners (m, 3, 3), directions (m, 3) -> t (m,), u (m,), v (m,): the point is ``t * direction`` and
+    ``(1 - u - v) * c0 + u * c1 + v * c2``. Elementwise products, sums and one division, written out so
+    that the operation order is fixed: the same bits on every CPU.
+    """
+    c0 = corners[:, 0]
+    e1, e2 = corners[:, 1] - c0, corners[:, 2] - c0
+    s = -c0
+    p, q = _cross_rows(directions, e2), _cross_rows(s, e1)
+    inv_det = 1.0 / _dot_rows(e1, p)
+    return _dot_rows(e2, q) * inv_det, _dot_rows(s, p) * inv_det, _dot_rows(directions, q) * inv_det
+
+
+def _dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(m, 3) . (m, 3) -> (m,), in a fixed order."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(m, 3) x (m, 3) -> (m, 3), written out (np.cross's order is its own business)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+                     a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
 
 
 # --- the renderer ------------------------------------------------------------------------------------
@@ -396,7 +462,7 @@ class DigitRenderer:
         apex = sensor.GEL_CENTER[0]
         self._half_y = float(np.abs(rays[..., 1]).max() * apex) + 1e-4
         self._half_z = float(np.abs(rays[..., 2]).max() * apex) + 1e-4
-        self._focal = (self.height / 2.0) / np.tan(CAMERA_YFOV / 2.0) / self.render_step
+        self._focal = (self.height / 2.0) / math.tan(CAMERA_YFOV / 2.0) / self.render_step
         self._caster = _RayCaster()
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
 
