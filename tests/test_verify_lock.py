@@ -1,0 +1,247 @@
+"""scripts/verify_lock.py: re-making a stage recorded in dvc.lock into a temporary directory.
+
+On a tiny DVC repository made here (two stages, a file, an HDF5 file, a directory and a cache: false
+out), then, if the data are there, on the project's own sample_distractor@prim_box.
+"""
+
+import hashlib
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+SCRIPT = REPO / "scripts" / "verify_lock.py"
+BIN = os.path.dirname(sys.executable)
+
+spec = importlib.util.spec_from_file_location("verify_lock", SCRIPT)
+verify_lock = importlib.util.module_from_spec(spec)
+sys.modules["verify_lock"] = verify_lock  # its dataclasses look their module up there
+spec.loader.exec_module(verify_lock)
+
+# Stage 1 writes a list and a "timing"; stage 2 sums it into an HDF5 file, a folder of parts and a
+# markdown table. The timings come from FAKE_SECONDS so that a test can move them and nothing else.
+MAKE_PY = """\
+import json, os, sys
+from pathlib import Path
+n = int(sys.argv[1])
+Path("out").mkdir(exist_ok=True)
+data = {"values": list(range(n)), "seconds": float(os.environ.get("FAKE_SECONDS", "1.5"))}
+Path("out/data.json").write_text(json.dumps(data, sort_keys=True))
+"""
+
+SUMMARIZE_PY = """\
+import json, os
+from pathlib import Path
+import h5py
+import numpy as np
+values = np.array(json.loads(Path("out/data.json").read_text())["values"], dtype=float)
+seconds = float(os.environ.get("FAKE_SECONDS", "1.5"))
+total = values.sum()
+with h5py.File("out/summary.h5", "w") as f:
+    f.attrs["config"] = json.dumps({"n": len(values)})
+    f.create_dataset("values", data=values)
+    f.create_dataset("total", data=total)
+    f.create_dataset("timing/seconds_total", data=seconds)
+Path("out/parts").mkdir(exist_ok=True)
+for i, chunk in enumerate(np.array_split(values, 2)):
+    part = {"sum": float(chunk.sum()), "count": len(chunk), "time_s": seconds / 2}
+    Path(f"out/parts/part_{i}.json").write_text(json.dumps(part, sort_keys=True))
+Path("out/report.md").write_text(f"| total | {total:.1f} |\\n")
+"""
+
+DVC_YAML = """\
+stages:
+  make:
+    cmd: python make.py ${n}
+    deps:
+      - make.py
+    params:
+      - n
+    outs:
+      - out/data.json
+  summarize:
+    cmd: python summarize.py
+    deps:
+      - summarize.py
+      - out/data.json
+    outs:
+      - out/summary.h5
+      - out/parts
+      - out/report.md:
+          cache: false
+"""
+
+
+def run(cmd, cwd, env=None, check=True):
+    env = dict(os.environ if env is None else env, DVC_NO_ANALYTICS="1", PATH=BIN + os.pathsep + os.environ["PATH"])
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, check=False)
+    if check:
+        assert proc.returncode == 0, f"{cmd} failed:\n{proc.stdout}\n{proc.stderr}"
+    return proc
+
+
+def verify(repo, *args, env=None):
+    """The script on ``repo``: (exit status, stdout)."""
+    proc = run([sys.executable, str(SCRIPT), "--repo", str(repo), *args], cwd=repo, env=env, check=False)
+    return proc.returncode, proc.stdout + proc.stderr
+
+
+def tree_digest(root: Path) -> dict[str, str]:
+    """md5 of every file below root: to show that verifying writes nothing there."""
+    return {str(p.relative_to(root)): hashlib.md5(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file() and ".dvc/tmp" not in p.as_posix()}
+
+
+@pytest.fixture(scope="module")
+def built_repo(tmp_path_factory):
+    """The tiny repository after `dvc repro`: dvc.lock written, outs in the workspace and the cache."""
+    if shutil.which("dvc", path=BIN) is None:
+        pytest.skip("dvc is not installed beside this Python")
+    root = tmp_path_factory.mktemp("tiny") / "repo"
+    root.mkdir()
+    (root / "make.py").write_text(MAKE_PY)
+    (root / "summarize.py").write_text(SUMMARIZE_PY)
+    (root / "dvc.yaml").write_text(DVC_YAML)
+    (root / "params.yaml").write_text("n: 7\n")
+    run(["dvc", "init", "--no-scm", "-q"], root)
+    run(["dvc", "repro", "-q"], root)
+    assert (root / "dvc.lock").is_file()
+    return root
+
+
+@pytest.fixture
+def repo(built_repo, tmp_path):
+    """A private copy for one test, which may edit it."""
+    copy = tmp_path / "repo"
+    shutil.copytree(built_repo, copy, symlinks=True)
+    return copy
+
+
+def test_timing_names():
+    for name in ("seconds", "seconds_encode", "timing/seconds_total", "load_seconds", "time_s_median",
+                 "ours.time_s_encode_median", "wall_s", "median_s", "images_per_s"):
+        assert verify_lock.is_timing(name), name
+    for name in ("values", "total", "pos_err_cm_top1", "n_poses", "points", "sensors", "spacing/nn_mean_m"):
+        assert not verify_lock.is_timing(name), name
+
+
+def test_directory_md5_is_dvcs(tmp_path):
+    from dvc_data.hashfile.hash_info import HashInfo
+    from dvc_data.hashfile.meta import Meta
+    from dvc_data.hashfile.tree import Tree
+
+    (tmp_path / "d" / "sub").mkdir(parents=True)
+    (tmp_path / "d" / "a.txt").write_text("a")
+    (tmp_path / "d" / "sub" / "b.bin").write_bytes(b"\0\1")
+    tree = Tree()
+    for rel, md5 in verify_lock.dir_listing(tmp_path / "d").items():
+        tree.add(tuple(rel.split("/")), Meta(), HashInfo("md5", md5))
+    tree.digest()
+    assert verify_lock.path_md5(tmp_path / "d") == tree.hash_info.value
+
+
+def test_json_differences_are_named():
+    found = dict(verify_lock.diff_json_values({"a": {"b": 1.0, "c": [1, 2]}, "d": 1}, {"a": {"b": 1.5, "c": [1, 3]}, "e": 2}))
+    assert set(found) == {"a.b", "a.c[1]", "d", "e"}
+    assert "+0.5" in found["a.b"] and found["d"] == "removed" and found["e"] == "added"
+
+
+@pytest.mark.slow
+def test_nothing_changed_every_out_identical_and_nothing_written(repo):
+    before = tree_digest(repo)
+    status, out = verify(repo, "make", "summarize")
+    assert status == 0, out
+    for path in ("out/data.json", "out/summary.h5", "out/parts", "out/report.md"):
+        assert f": {path}: identical" in out
+    assert "code changed:" not in out and "make (no code changed): 1 of 1 outs identical" in out
+    assert "result: every out re-made identical" in out
+    assert "\nthen: dvc commit -f make summarize\n" in out.split("--- summary")[1]
+    assert tree_digest(repo) == before  # workspace, dvc.lock and cache untouched
+    assert not list(repo.glob("*.tmp*"))
+
+
+@pytest.mark.slow
+def test_code_change_that_keeps_the_output_passes(repo):
+    with open(repo / "summarize.py", "a") as f:
+        f.write("# a comment: the same outputs\n")
+    status, out = verify(repo, "summ*")  # a pattern, as for render_database@*
+    assert status == 0, out
+    assert "summarize: code changed: summarize.py" in out
+    assert "summarize (code changed: summarize.py): 3 of 3 outs identical" in out
+    assert "make:" not in out
+
+
+@pytest.mark.slow
+def test_code_change_that_alters_the_output_fails_and_names_it(repo):
+    code = (repo / "summarize.py").read_text()
+    (repo / "summarize.py").write_text(code.replace("total = values.sum()", "total = values.sum() + 1"))
+    (repo / "out" / "summary.h5").unlink()  # the recorded version then comes from the DVC cache
+    status, out = verify(repo, "summarize")
+    assert status == 1, out
+    assert "summarize: out/summary.h5: differs" in out
+    assert "dataset total: 1 of 1 elements differ, max |diff| 1" in out
+    assert "summarize: out/report.md: differs" in out and "line 1" in out
+    assert "summarize: out/parts: identical" in out
+    assert "differ: out/report.md, out/summary.h5" in out  # in dvc.lock's order
+    assert "result: some outs differ" in out
+
+
+@pytest.mark.slow
+def test_ignore_timings(repo):
+    env = dict(os.environ, FAKE_SECONDS="9.25")  # other timings, same code and data
+    status, out = verify(repo, "summarize", env=env)
+    assert status == 1, out
+    assert "dataset timing/seconds_total: 1 of 1 elements differ" in out
+    assert "part_0.json: time_s: 0.75 -> 4.625" in out
+
+    status, out = verify(repo, "--ignore-timings", "summarize", "make", env=env)
+    assert status == 0, out
+    assert "out/summary.h5: identical except timings (not compared, timings: timing/seconds_total)" in out
+    assert "out/parts: identical except timings (not compared, timings: time_s)" in out
+    assert "out/data.json: identical except timings (not compared, timings: seconds)" in out
+    assert "out/report.md: identical\n" in out
+
+
+@pytest.mark.slow
+def test_changed_data_dep_or_param_is_not_verified(repo):
+    (repo / "out" / "data.json").write_text('{"values": [1], "seconds": 1.5}')
+    status, out = verify(repo, "summarize")
+    assert status == 2, out
+    assert "summarize: NOT VERIFIED: data dep changed: out/data.json" in out
+    assert "out/summary.h5" not in out.split("---")[0]  # not run
+
+    (repo / "params.yaml").write_text("n: 8\n")
+    status, out = verify(repo, "make", "nosuch")
+    assert status == 2, out
+    assert "make: NOT VERIFIED: param changed: params.yaml:n (7 -> 8)" in out
+    assert "nosuch: no such stage in dvc.lock" in out
+
+
+@pytest.mark.slow
+def test_project_stage_remade_byte_for_byte(tmp_path):
+    """sample_distractor@prim_box in a copy of this checkout, its dep made first (and verified) by
+    prepare_distractor@prim_box, so that nothing is read from or written to this checkout's artifacts/."""
+    tracked = run(["git", "ls-files"], REPO).stdout.split()
+    root = tmp_path / "project"
+    for rel in tracked:
+        if (REPO / rel).is_file():
+            (root / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(REPO / rel, root / rel)
+    status, out = verify(root, "prepare_distractor@prim_box")
+    if status != 0 and "code changed" in out:
+        pytest.skip(f"this checkout's code differs from dvc.lock and changes the object:\n{out}")
+    assert status == 0, out
+    run([sys.executable, "-m", "stages.prepare_object", "--params", "params.yaml", "--object", "prim_box",
+         "--distractor"], root)
+    status, out = verify(root, "sample_distractor@prim_box")
+    if status != 0 and "code changed" in out:
+        pytest.skip(f"this checkout's code differs from dvc.lock and changes the surface:\n{out}")
+    assert status == 0, out
+    assert "sample_distractor@prim_box: artifacts/distractors/surfaces/prim_box.h5: identical" in out
