@@ -32,8 +32,13 @@ install: $(VENV)/.installed
 test: install
 	$(BIN)/python -m pytest -q
 
+# The target times itself, install included: make expands REPRODUCE_STARTED (`:=`) as it reads this file,
+# before it builds the install prerequisite; record_reproduce_time.py writes artifacts/times/make_reproduce.json
+# for update_readme.py. repro_progress.py is `dvc repro` numbering the stages as DVC comes to them.
+reproduce: REPRODUCE_STARTED := $(shell date +%s)
 reproduce: install
-	$(BIN)/dvc repro
+	$(BIN)/python scripts/repro_progress.py
+	$(BIN)/python scripts/record_reproduce_time.py $(REPRODUCE_STARTED)
 	$(BIN)/python scripts/update_readme.py
 
 # Refresh the committed params.yaml after editing conf/ (plain `dvc repro` reads params.yaml).

@@ -1,6 +1,9 @@
 """Copy the headline of the generated results page (reports/results.md, stage report) into README.md
-between the markers ``<!-- results:start -->`` and ``<!-- results:end -->``, rewriting its figure links.
-Run by `make reproduce`.
+between the markers ``<!-- results:start -->`` and ``<!-- results:end -->``, rewriting its figure links,
+and the time the last `make reproduce` took (artifacts/times/make_reproduce.json, which the Makefile
+writes through scripts/record_reproduce_time.py) between ``<!-- reproduce-time:start -->`` and
+``<!-- reproduce-time:end -->``. Run by `make reproduce`; without that time file (a `dvc repro` run by
+hand) the time sentence is left as it is.
 
 The headline is the page's first line (when and where it was generated) and the sections named in
 ``HEADLINE``; the other sections (per object, validation, sensor count, ablation, autoencoder, scenes)
@@ -9,11 +12,17 @@ stay on reports/results.md, which the README links to, so that the README stays 
 
 from __future__ import annotations
 
+import json
 import re
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # this checkout's tactile6d
+
+from tactile6d.stage_clock import duration  # noqa: E402
+
 START, END = "<!-- results:start -->", "<!-- results:end -->"
+TIME_START, TIME_END = "<!-- reproduce-time:start -->", "<!-- reproduce-time:end -->"
 # Section headings (without "### ") copied into the README, in the page's order.
 HEADLINE = ("The paper's 40 triplets (test set), L = 3",
             "Off-axis scenes (generated; sensors tilted and touching off the gel's centre)",
@@ -43,25 +52,55 @@ def headline(page: str, titles=HEADLINE) -> str:
     return body.replace("](figures/", "](reports/figures/")
 
 
-def main() -> int:
-    root = Path(__file__).resolve().parent.parent
+def reproduce_sentence(rec: dict) -> str:
+    """The README's sentence on how long `make reproduce` took, from its record (scripts/record_reproduce_time.py)."""
+    setup = "venv creation and install included" if rec["installed"] else "the venv was already installed"
+    data = "the data from a local copy (`DATA=`)" if rec["local_data"] else "the data from the pinned download"
+    if rec["stages_run"] == rec["stages"]:
+        ran = f"DVC ran all {rec['stages']} stages"
+    else:
+        ran = (f"DVC ran {rec['stages_run']} of the pipeline's {rec['stages']} stages (the others were unchanged "
+               "or restored from its run cache)")
+    return (f"The last `make reproduce` took **{duration(rec['seconds'])}** here, ending on {rec['finished'][:10]} "
+            f"({rec['cpu']}, {rec['cores']} cores; {setup}; {data}). In it {ran}, "
+            f"{duration(rec['stages_run_seconds'])} of stage time together; each stage's time: "
+            "[reports/results.md](reports/results.md#stage-times). Measured by the run itself "
+            "(artifacts/times/, docs/pipeline.md).")
+
+
+def replace_between(text: str, start: str, end: str, body: str) -> str:
+    """``text`` with what lies between the markers ``start`` and ``end`` (on their own lines) replaced by ``body``."""
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{start}\n{body}\n{end}{tail}"
+
+
+def main(root: Path | None = None) -> int:
+    """Update ``root``/README.md (default: this checkout's) from its results page and reproduction time."""
+    root = root or Path(__file__).resolve().parent.parent
     results = root / "reports" / "results.md"
     readme = root / "README.md"
+    reproduce_time = root / "artifacts" / "times" / "make_reproduce.json"
     if not results.is_file():
         print(f"{results} not found: run `dvc repro report` first", file=sys.stderr)
         return 1
     text = readme.read_text()
-    if START not in text or END not in text:
-        print(f"README.md lacks the markers {START} / {END}", file=sys.stderr)
-        return 1
+    for start, end in ((START, END), (TIME_START, TIME_END)):
+        if start not in text or end not in text:
+            print(f"README.md lacks the markers {start} / {end}", file=sys.stderr)
+            return 1
     try:
         body = headline(results.read_text())
     except ValueError as exc:
         print(exc, file=sys.stderr)
         return 1
-    head, rest = text.split(START, 1)
-    _, tail = rest.split(END, 1)
-    readme.write_text(f"{head}{START}\n{body}\n{END}{tail}")
+    text = replace_between(text, START, END, body)
+    if reproduce_time.is_file():
+        text = replace_between(text, TIME_START, TIME_END, reproduce_sentence(json.loads(reproduce_time.read_text())))
+        print("README.md: reproduction time updated from artifacts/times/make_reproduce.json")
+    else:
+        print(f"README.md: reproduction time left as it was (no {reproduce_time.relative_to(root)})")
+    readme.write_text(text)
     print("README.md: results section updated from reports/results.md")
     return 0
 

@@ -38,6 +38,7 @@ from tactile6d.sensor_subsets import (
     score_scene_subsets,
     summarise_subset_rows,
 )
+from tactile6d.stage_clock import timed
 from tactile6d.variants import estimator_settings_key, variant_config
 
 
@@ -121,4 +122,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

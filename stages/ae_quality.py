@@ -33,6 +33,7 @@ from tactile6d.config import parse_stage_args  # noqa: E402
 from tactile6d.errors import exit_on_error  # noqa: E402
 from tactile6d.io import read_artifact, write_json  # noqa: E402
 from tactile6d.latent_gaps import triplet_gaps  # noqa: E402
+from tactile6d.stage_clock import timed
 
 
 def database_types(artifacts: str, name: str, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -97,4 +98,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

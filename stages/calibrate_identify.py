@@ -26,6 +26,7 @@ from tactile6d.errors import exit_on_error
 from tactile6d.identifier import Identifier
 from tactile6d.io import read_artifact, write_json
 from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.stage_clock import timed
 
 SCENE_SET = "calibration"
 L2 = 1e-3  # ridge on the weights: keeps them finite when every true object already scores best
@@ -70,4 +71,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

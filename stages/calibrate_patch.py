@@ -14,6 +14,7 @@ import time
 from tactile6d import layout, patch
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
+from tactile6d.stage_clock import timed
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,4 +30,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

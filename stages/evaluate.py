@@ -21,6 +21,7 @@ from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_json, write_text
 from tactile6d.render import mesh_arrays
+from tactile6d.stage_clock import timed
 
 METHODS = ("ours", "baseline")
 STEPS = ("encode", "select", "optimize", "rank")
@@ -117,4 +118,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

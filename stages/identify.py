@@ -17,6 +17,7 @@ from tactile6d.errors import exit_on_error
 from tactile6d.identifier import Identifier, identify_scene_set
 from tactile6d.io import read_artifact, write_json
 from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.stage_clock import timed
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,4 +40,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

@@ -22,6 +22,7 @@ from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, read_scene_dir, write_artifact
 from tactile6d.render import DigitRenderer, load_background_bgr
+from tactile6d.stage_clock import timed
 
 SCENE_SETS = ("caddeo2023", "validation", "offaxis", "calibration")
 
@@ -122,4 +123,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

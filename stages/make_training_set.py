@@ -27,6 +27,7 @@ from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.io import write_artifact
 from tactile6d.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
 from tactile6d.sensor import contact_normals, sensor_poses_to_surface_points
+from tactile6d.stage_clock import timed
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -97,4 +98,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

@@ -31,6 +31,7 @@ from tactile6d.run_artifacts import (
 )
 from tactile6d.schemas import CONTACT_FIELDS, PATCH_FIELDS
 from tactile6d.settings import OptimizeSettings
+from tactile6d.stage_clock import timed
 from tactile6d.steps.optimize import optimize
 
 
@@ -86,4 +87,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

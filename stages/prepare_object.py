@@ -17,6 +17,7 @@ from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.io import write_artifact, write_json
+from tactile6d.stage_clock import timed
 from tactile6d.surface import sample_surface_even
 
 
@@ -92,4 +93,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

@@ -29,6 +29,7 @@ from tactile6d.run_artifacts import (
 )
 from tactile6d.schemas import CONTACT_FIELDS
 from tactile6d.settings import RankSettings
+from tactile6d.stage_clock import timed
 from tactile6d.steps.rank import load_mesh, load_pieces, rank
 
 
@@ -80,4 +81,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

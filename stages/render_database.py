@@ -40,6 +40,7 @@ from tactile6d.render import (
     mesh_arrays,
 )
 from tactile6d.sensor import sensor_poses_touching
+from tactile6d.stage_clock import timed
 
 # Poses per task: ~0.5 s of rendering and encoding each, so 2000 points make 63 tasks, enough to keep
 # a few dozen workers busy and to even out the load; the per-task cost (shipping the mesh and the
@@ -123,4 +124,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

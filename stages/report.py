@@ -1,7 +1,8 @@
 """Stage report: the results page and figures, generated from the metrics (never typed by hand).
 
 Reads the metrics and tables of evaluate, sensor_study and ae_quality, and, for the figures, the
-caddeo2023 scenes, our ranked poses and tuples, and the objects' surfaces and latents. Writes
+caddeo2023 scenes, our ranked poses and tuples, and the objects' surfaces and latents; for the
+stage-time table, every other stage's time record (``artifacts/times/stages/``, ``tactile6d.stage_clock``). Writes
 ``reports/results.md`` and ``reports/figures/*.png`` (tracked by git, so the README can show them;
 ``make reproduce`` copies results.md into the README).
 """
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import layout, viz
+from tactile6d import layout, stage_clock, viz
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
 from tactile6d.evaluation import PAPER_TABLE_I, ablation_markdown
@@ -166,6 +167,44 @@ def identification_section(artifacts: str, figures: Path, workers: int) -> list[
     ]
 
 
+def stage_family(name: str) -> str:
+    """``render_database@004_sugar_box`` -> ``render_database``: the dvc.yaml stage a foreach/matrix item belongs to."""
+    return name.split("@", 1)[0]
+
+
+def times_section(records: list[dict]) -> list[str]:
+    """The per-stage time table from the stages' time records (``stage_clock.read_records``, ordered by start):
+    one row per dvc.yaml stage (count of items, summed and longest seconds, share), then the total."""
+    if not records:
+        return ["(no stage times recorded: they are written by stages run under `dvc repro`)", ""]
+    families: dict[str, list[dict]] = {}
+    for rec in records:  # in order of start, so the table follows the pipeline as it ran
+        families.setdefault(stage_family(rec["stage"]), []).append(rec)
+    total = sum(r["seconds"] for r in records)
+    rows = []
+    for family, recs in families.items():
+        summed = sum(r["seconds"] for r in recs)
+        longest = max(recs, key=lambda r: r["seconds"])
+        item = f" ({longest['stage'].split('@', 1)[1]})" if "@" in longest["stage"] and len(recs) > 1 else ""
+        rows.append(f"| {family} | {len(recs)} | {stage_clock.duration(summed)} | {longest['seconds']:.1f}{item} | "
+                    f"{100 * summed / total:.1f} |")
+    machines = sorted({f"{r['cpu']}, {r['cores']} cores" for r in records})
+    first, last = records[0]["started"], max((r["finished"] for r in records), key=datetime.datetime.fromisoformat)
+    return [
+        ("Each stage's wall time as it recorded it (`tactile6d/stage_clock.py`, `artifacts/times/stages/`): "
+         "from the start of its process to its end. DVC runs the stages one after another, so their sum is "
+         "the pipeline's wall time, less DVC's own work between stages and this report stage (README: the whole "
+         "`make reproduce`). A stage DVC skipped or restored from its run cache keeps the time of the run that "
+         f"made it. Recorded between {first} and {last}, on {'; '.join(machines)}."),
+        "",
+        "| stage | count | total | longest (s) | share (%) |",
+        "|---|---|---|---|---|",
+        *rows,
+        f"| **all stages** | {len(records)} | **{stage_clock.duration(total)}** | | 100.0 |",
+        "",
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     _, cfg = parse_stage_args(argv, __doc__.splitlines()[0])
     artifacts = cfg.paths.artifacts_dir
@@ -253,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
         "",
         *[f"![{n}](figures/{n})" for n in scene_figures],
         "",
+        "### Stage times",
+        "",
+        *times_section(stage_clock.read_records()),
     ]
     write_text(REPORT_DIR / "results.md", "\n".join(parts))
     print(f"report: {REPORT_DIR / 'results.md'} and {len(scene_figures) + 2} figures")
@@ -260,4 +302,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(stage_clock.timed(main, stage_clock.TIMES_DIR)))  # beside the times it reads

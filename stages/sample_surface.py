@@ -15,6 +15,7 @@ from tactile6d import layout
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.errors import ConfigError, exit_on_error
 from tactile6d.io import read_artifact, write_artifact
+from tactile6d.stage_clock import timed
 from tactile6d.surface import nearest_neighbour_distances, sample_surface_even
 
 
@@ -43,4 +44,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

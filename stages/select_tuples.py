@@ -32,6 +32,7 @@ from tactile6d.run_artifacts import (
 )
 from tactile6d.scenes import scene_set_from_artifact
 from tactile6d.settings import SelectSettings
+from tactile6d.stage_clock import timed
 from tactile6d.steps.encode import (
     LatentAngleEncoder,
     load_background,
@@ -136,4 +137,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

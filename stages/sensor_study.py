@@ -21,6 +21,7 @@ from tactile6d.estimator import Estimator
 from tactile6d.optimize import use_cpu_devices_for
 from tactile6d.io import read_artifact, write_json, write_text
 from tactile6d.sensor_subsets import evaluate_sensor_count
+from tactile6d.stage_clock import timed
 
 METHODS = ("ours", "baseline")
 
@@ -66,4 +67,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

@@ -16,6 +16,7 @@ from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.database import StoredImages
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_json, write_text
+from tactile6d.stage_clock import timed
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,4 +56,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(exit_on_error(main))
+    sys.exit(exit_on_error(timed(main)))

@@ -1,5 +1,7 @@
 """The report stage's headline table: targets judged as stated, the paper's method as re-run here beside
-the paper's own Table I."""
+the paper's own Table I; and its table of the stages' recorded times."""
+
+import datetime
 
 from stages import report
 
@@ -25,3 +27,26 @@ def test_headline_table_judges_targets_and_shows_the_rerun_column():
 def test_validation_table_has_no_paper_columns():
     table = report.headline_table({"ours": {"pos_err_cm_top1": 1.0}}, with_paper=False)
     assert "Table I" not in table and row(table, report.LABELS["pos_err_cm_top1"])[1:] == ["1.00", "-"]
+
+
+def test_stage_time_table_groups_items_by_stage_and_sums_them(tmp_path):
+    """From time files as the stages write them: one row per dvc.yaml stage, in the order they ran, then the total."""
+    from tactile6d import stage_clock
+
+    end = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=datetime.timezone.utc)
+    for i, (stage, seconds) in enumerate([("render_database@002_master_chef_can", 120.0), ("train_ae", 400.0),
+                                          ("render_database@004_sugar_box", 180.5), ("select_tuples@caddeo2023-ours", 9.5)]):
+        finished = end + datetime.timedelta(minutes=10 * i)
+        stage_clock.write_record(tmp_path / f"{stage}.json", stage_clock.record(stage, seconds, finished))
+    lines = report.times_section(stage_clock.read_records(tmp_path))
+    table = "\n".join(lines)
+    assert [line.split("|")[1].strip() for line in lines if line.startswith("| ")][1:] == \
+        ["render_database", "train_ae", "select_tuples", "**all stages**"]
+    assert row(table, "render_database") == ["render_database", "2", "5 min 0 s", "180.5 (004_sugar_box)", "42.3"]
+    assert row(table, "train_ae") == ["train_ae", "1", "6 min 40 s", "400.0", "56.3"]
+    assert row(table, "**all stages**")[:3] == ["**all stages**", "4", "**11 min 50 s**"]
+    assert "2026-11-25T09:58:00+00:00" in table  # the first start: 120 s before its end
+
+
+def test_stage_time_table_without_records_says_so():
+    assert "no stage times recorded" in report.times_section([])[0]

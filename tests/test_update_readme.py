@@ -1,7 +1,13 @@
+"""scripts/update_readme.py: the README's results block from reports/results.md, and its sentence on how
+long `make reproduce` took from the run's own record (scripts/record_reproduce_time.py)."""
+
+import datetime
 import importlib.util
 from pathlib import Path
 
 import pytest
+
+from tactile6d import stage_clock
 
 spec = importlib.util.spec_from_file_location("update_readme", Path(__file__).parents[1] / "scripts" / "update_readme.py")
 update_readme = importlib.util.module_from_spec(spec)
@@ -43,3 +49,74 @@ def test_the_readme_gets_the_headline_sections_and_a_link_to_the_rest():
 def test_a_page_without_a_headline_section_is_an_error():
     with pytest.raises(ValueError, match="lacks the sections"):
         update_readme.headline(PAGE.replace("### Per object (caddeo2023)", "").replace("### Off-axis", "### Other"))
+
+
+record_spec = importlib.util.spec_from_file_location(
+    "record_reproduce_time", Path(__file__).parents[1] / "scripts" / "record_reproduce_time.py")
+record_reproduce_time = importlib.util.module_from_spec(record_spec)
+record_spec.loader.exec_module(record_reproduce_time)
+
+README = """# project
+
+<!-- reproduce-time:start -->
+It took an unknown time.
+<!-- reproduce-time:end -->
+
+`make test` took a while.
+
+<!-- results:start -->
+old results
+<!-- results:end -->
+
+The rest.
+"""
+
+
+def stage_records(start: float, before: int, during: list[float]) -> list[dict]:
+    """Time records of ``before`` stages that ran an hour before ``start`` (epoch seconds) and of the ``during``
+    seconds of stages run one after another from 5 s after it (the install, DVC's start-up)."""
+    t = datetime.datetime.fromtimestamp(start).astimezone()
+    old = [stage_clock.record(f"old@{i}", 10.0, t - datetime.timedelta(hours=1)) for i in range(before)]
+    ends = [5 + sum(during[:i + 1]) for i in range(len(during))]
+    new = [stage_clock.record(f"new@{i}", s, t + datetime.timedelta(seconds=e)) for i, (s, e) in enumerate(zip(during, ends))]
+    return old + new
+
+
+def write_tree(root: Path, rec: dict | None) -> None:
+    (root / "reports").mkdir()
+    (root / "reports" / "results.md").write_text(PAGE)
+    (root / "README.md").write_text(README)
+    if rec is not None:
+        stage_clock.write_record(root / "artifacts" / "times" / "make_reproduce.json", rec)
+
+
+def test_the_readme_gets_the_time_make_reproduce_recorded(tmp_path):
+    start = 1_795_000_000.0
+    rec = record_reproduce_time.reproduce_record(start, start + 3011.4, stage_records(start, 0, [30.0, 2000.0, 900.0]),
+                                                 installed=True, local_data=True)
+    assert (rec["stages"], rec["stages_run"], rec["stages_run_seconds"]) == (3, 3, 2930.0)
+    write_tree(tmp_path, rec)
+    assert update_readme.main(tmp_path) == 0
+    text = (tmp_path / "README.md").read_text()
+    sentence = text.split("<!-- reproduce-time:start -->\n")[1].split("\n<!-- reproduce-time:end -->")[0]
+    assert sentence.startswith("The last `make reproduce` took **50 min 11 s** here")
+    assert "DVC ran all 3 stages, 48 min 50 s of stage time together" in sentence
+    assert "venv creation and install included" in sentence and "local copy" in sentence
+    assert "unknown time" not in text and "| a | b |" in text and "old results" not in text
+    assert text.endswith("<!-- results:end -->\n\nThe rest.\n") and "`make test` took a while." in text
+
+
+def test_a_partial_run_says_how_many_stages_dvc_ran():
+    start = 1_795_000_000.0
+    rec = record_reproduce_time.reproduce_record(start, start + 100, stage_records(start, 4, [70.0]),
+                                                 installed=False, local_data=False)
+    sentence = update_readme.reproduce_sentence(rec)
+    assert "DVC ran 1 of the pipeline's 5 stages" in sentence and "1 min 10 s of stage time" in sentence
+    assert "the venv was already installed" in sentence and "pinned download" in sentence
+
+
+def test_without_a_recorded_time_the_sentence_stays(tmp_path):
+    write_tree(tmp_path, None)
+    assert update_readme.main(tmp_path) == 0
+    text = (tmp_path / "README.md").read_text()
+    assert "It took an unknown time." in text and "| a | b |" in text
