@@ -1,13 +1,14 @@
-"""Stage ablation: the effect of each accuracy switch (normals, best_n, refinement) for L = 1, 2, 3 sensors.
+"""Stage ablation: the effect of each accuracy switch (normals, best_n, refinement, patches) at L = 3 sensors.
 
 Every variant of config section ``ablation.variants`` is applied to the ``select``, ``optimize`` and
 ``rank`` sections (``tactile6d.variants``: method ``ours``; solver ``ablation.solver`` unless the variant
-sets its own; a variant may start from a preset's sections), and each
-scene of the set is estimated from every subset of 1, 2 and 3 of its sensors (``tactile6d.sensor_subsets``,
-as in sensor_study). Two variants that come out as the same settings (e.g. the last step of the chain
-and ``default``) are estimated once. Reads the scenes and each object's artifacts; writes
-``artifacts/metrics/ablation_<set>.json``: variant -> ``L1``/``L2``/``L3`` -> the evaluation's metric
-names, plus ``time_s_median`` (per estimate).
+sets its own; a variant may start from a preset's sections), and each scene of the set is estimated from
+all its sensors; a variant of ``ablation.curves`` also from every subset of 1, ..., L of them
+(``tactile6d.sensor_subsets``, as in sensor_study). A variant of ``ablation.only_on`` runs on the scene
+sets it lists only. Two variants that come out as the same settings (e.g. the last step of the chain and
+``default``) are estimated once. Reads the scenes and each object's artifacts; writes
+``artifacts/metrics/ablation_<set>.json``: variant -> ``L<count>`` -> the evaluation's metric names, plus
+``time_s_median`` (per estimate).
 
 One executor task per variant and scene (``tactile6d.executor``, config section ``executor``):
 ``ablation.workers`` local processes by default, a Dask cluster's workers when ``executor.address``
@@ -42,9 +43,10 @@ from tactile6d.stage_clock import timed
 from tactile6d.variants import estimator_settings_key, variant_config
 
 
-def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.ndarray]) -> dict[int, SubsetRows]:
-    """One task: a scene estimated from every subset of 1, ..., L of its sensors with variant ``name``
-    -> L -> its rows.
+def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.ndarray],
+                counts: tuple[int, ...]) -> dict[int, SubsetRows]:
+    """One task: a scene estimated from every subset of each of ``counts`` of its sensors with variant
+    ``name`` -> count -> its rows.
 
     run: a token of this stage run, so that a worker process that ran an earlier one reloads (the
     artifacts may have changed); cfg_container: the variant's whole config (``variant_config``) as plain
@@ -65,7 +67,24 @@ def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.nd
         references[obj] = evaluation.load_object_reference(artifacts, obj)
     return {L: score_scene_subsets(estimators[obj], scene["T_world_sensors"], scene["images"], scene["T_world_object"],
                                    references[obj], L)
-            for L in range(1, len(scene["T_world_sensors"]) + 1)}
+            for L in counts}
+
+
+def variants_on(scene_set: str, names: list[str], only_on: dict) -> list[str]:
+    """The variants of ``names`` that run on ``scene_set`` (``ablation.only_on``: variant -> its sets)."""
+    unknown = sorted(set(only_on) - set(names))
+    if unknown:
+        raise ConfigError(f"ablation.only_on names variants that ablation.variants does not have: {unknown}")
+    return [name for name in names if name not in only_on or scene_set in only_on[name]]
+
+
+def sensor_counts(names: list[str], n_sensors: int, curves: list[str]) -> dict[str, tuple[int, ...]]:
+    """variant -> the sensor counts it is estimated at: every count 1..L for ``curves``, else L alone."""
+    unknown = sorted(set(curves) - set(names))
+    if unknown:
+        raise ConfigError(f"ablation.curves names variants that ablation.variants does not have: {unknown}")
+    every = tuple(range(1, n_sensors + 1))
+    return {name: every if name in curves else every[-1:] for name in names}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -75,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     if workers < 1:
         raise ConfigError(f"ablation.workers must be >= 1, got {workers}")
     artifacts = cfg.paths.artifacts_dir
-    variants = {name: variant_config(cfg, name, v) for name, v in cfg.ablation.variants.items()}
+    only_on = OmegaConf.to_container(cfg.ablation.only_on) if cfg.ablation.only_on else {}
+    names = variants_on(args.scene_set, list(cfg.ablation.variants), only_on)
+    variants = {name: variant_config(cfg, name, cfg.ablation.variants[name]) for name in names}
     first_with = {}  # settings key -> the first variant that has those settings
     for name, variant_cfg in variants.items():
         first_with.setdefault(estimator_settings_key(variant_cfg), name)
@@ -84,6 +105,11 @@ def main(argv: list[str] | None = None) -> int:
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in scenes["objects"]]
     n_sensors = scenes["T_world_sensors"].shape[1] if objects else 0
+    counts_of = sensor_counts(names, n_sensors, list(cfg.ablation.curves or []))
+    counts = {first: () for first in unique}  # a variant estimated once for several names: every count they ask for
+    for name, variant_cfg in variants.items():
+        first = first_with[estimator_settings_key(variant_cfg)]
+        counts[first] = tuple(sorted({*counts[first], *counts_of[name]}))
     scene_data = [{"object": obj, "T_world_object": scenes["T_world_object"][s],
                    "T_world_sensors": scenes["T_world_sensors"][s], "images": scenes["images"][s]}
                   for s, obj in enumerate(objects)]
@@ -102,13 +128,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ablation {args.scene_set}: {len(unique)} distinct variants x {len(objects)} scenes on {ex.describe()}",
               flush=True)
         rows = ex.map(score_scene, [run] * len(jobs), [n for n, _ in jobs], [containers[n] for n, _ in jobs],
-                      [scene_data[s] for _, s in jobs], desc=f"ablation {args.scene_set}")
+                      [scene_data[s] for _, s in jobs], [counts[n] for n, _ in jobs], desc=f"ablation {args.scene_set}")
     by_job = dict(zip(jobs, rows))
 
     by_name = {}
     for name in unique:
         by_name[name] = {}
-        for L in range(1, n_sensors + 1):
+        for L in counts[name]:
             summary, seconds = summarise_subset_rows([by_job[name, s][L] for s in range(len(objects))], objects)
             summary["time_s_median"] = float(np.median(seconds)) if seconds else float("nan")
             by_name[name][f"L{L}"] = summary
@@ -116,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"rot ADI-AUC {summary.get('adi_auc_rot_top1', float('nan')):.1f} %, "
                   f"contact {summary.get('contact_acc_top1', float('nan')):.1f} %, "
                   f"{summary['time_s_median']:.2f} s per estimate", flush=True)
-    results = {name: by_name[first_with[estimator_settings_key(c)]] for name, c in variants.items()}
+    results = {name: {f"L{L}": by_name[first_with[estimator_settings_key(c)]][f"L{L}"] for L in counts_of[name]}
+               for name, c in variants.items()}
     write_json(layout.metrics_file(artifacts, f"ablation_{args.scene_set}"), results)
     return 0
 

@@ -121,6 +121,23 @@ def sensor_count_figure(results: dict, title: str):
     return fig
 
 
+def ablation_figure(results: dict, title: str):
+    """Positional error and contact accuracy of each ablation variant (``results[variant]``: metrics at one
+    sensor count), one horizontal bar each, top to bottom in the given order."""
+    names = list(results)
+    y = np.arange(len(names))[::-1]
+    fig, axes = plt.subplots(1, 2, figsize=(8, 0.8 + 0.3 * len(names)), sharey=True)
+    for ax, key, label in ((axes[0], "pos_err_cm_top1", "positional error #1 (cm)"),
+                           (axes[1], "contact_acc_top1", "contact accuracy #1 (%)")):
+        ax.barh(y, [results[n].get(key, np.nan) for n in names], color="tab:blue")
+        ax.set_xlabel(label)
+        ax.grid(alpha=0.3, axis="x")
+    axes[0].set_yticks(y, names)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
 def confusion_figure(matrix: np.ndarray, names: list[str], title: str):
     """Identification counts (O, O) over a library of O names, row = true object, column = identified
     first. Drawn: the rows of the objects the scenes show, and the columns of those objects and of every

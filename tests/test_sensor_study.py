@@ -61,27 +61,42 @@ def test_sensor_subsets():
 
 
 @pytest.mark.slow
-def test_ablation_reports_every_variant_and_sensor_count(artifacts, data_dir, monkeypatch, tmp_path):
+def test_ablation_reports_each_variant_at_its_sensor_counts_and_sets(artifacts, data_dir, monkeypatch, tmp_path):
     monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
     # delta_h = pi: every database point passes the tiny autoencoder's angles, as for the baseline
     # landmark contacts: the scene's sensors touch exact database points at their landmarks
     cfg = compose_config([f"paths.artifacts_dir={artifacts}", "select.N=200", "select.delta_h=3.2",
                           "select.delta_h_max=3.2", "select.contacts=landmark"])
     OmegaConf.set_struct(cfg, False)
-    cfg.ablation.variants = {"paper": {"select": {"delta_d_rule": "paper"}, "rank": {"refine": False}},
+    paper = {"select": {"delta_d_rule": "paper"}, "rank": {"refine": False}}
+    cfg.ablation.variants = {"paper": paper,
                              "normals": {"select": {"normal_tol_deg": 20.0}, "optimize": {"normal_weight": 0.01}},
-                             "paper_again": {"rank": {"refine": False}, "select": {"delta_d_rule": "paper"}}}
+                             "paper_again": {"rank": {"refine": False}, "select": {"delta_d_rule": "paper"}},
+                             "elsewhere": {"select": {"N": 100}}}
+    cfg.ablation.curves = ["paper"]
+    cfg.ablation.only_on = {"elsewhere": ["validation"], "normals": ["tiny", "validation"]}
     OmegaConf.save(cfg, tmp_path / "params.yaml")
     assert ablation.main(["--scene-set", "tiny", "--params", str(tmp_path / "params.yaml")]) == 0
     results = json.loads(layout.metrics_file(artifacts, "ablation_tiny").read_text())
-    assert set(results) == {"paper", "normals", "paper_again"}
-    assert results["paper_again"] == results["paper"]  # the same settings are estimated once (same timings too)
+    assert set(results) == {"paper", "normals", "paper_again"}  # "elsewhere" runs on validation only
+    assert set(results["paper"]) == {"L1", "L2", "L3"}  # a curve: every sensor count
+    assert set(results["normals"]) == set(results["paper_again"]) == {"L3"}  # the others: the scene's own L
+    # the same settings are estimated once (same timings too), at every count either name asks for
+    assert results["paper_again"]["L3"] == results["paper"]["L3"]
     for variant in results.values():
-        assert set(variant) == {"L1", "L2", "L3"}
         for summary in variant.values():
             assert {"pos_err_cm_top1", "adi_auc_rot_top1", "contact_acc_top1", "time_s_median"} <= set(summary)
             assert summary["time_s_median"] > 0
     # three sensors on exact database points (the normal switches apply up to two sensors by default): found
     assert results["normals"]["L3"]["pos_err_cm_top1"] < 0.5
+
+
+def test_ablation_names_of_curves_and_sets_must_be_variants():
+    with pytest.raises(ConfigError, match=r"ablation.curves .*\['nope'\]"):
+        ablation.sensor_counts(["paper", "default"], 3, ["nope"])
+    with pytest.raises(ConfigError, match=r"ablation.only_on .*\['nope'\]"):
+        ablation.variants_on("tiny", ["paper"], {"nope": ["tiny"]})
+    assert ablation.variants_on("offaxis", ["paper", "default"], {"paper": ["caddeo2023"]}) == ["default"]
+    assert ablation.sensor_counts(["paper", "default"], 3, ["paper"]) == {"paper": (1, 2, 3), "default": (3,)}
 
 
