@@ -43,8 +43,9 @@ batch. The model still never sees an object image; the AUROCs in docs/autoencode
 ordering learnt on superquadrics carries over to the YCB objects under the same labelling rule.
 
 Arrays: images are uint8 ``(n, 320, 240, 3)`` (rows along the sensor's z axis, 240 columns along y; the
-colour order is whatever the caller uses, consistently); a background is ``(320, 240, 3)``. Model tensors
-are float32 ``(n, 3, input_height, input_width)``.
+colour order is whatever the caller uses, consistently); a background is ``(320, 240, 3)`` (``encode``
+also takes ``(n, 320, 240, 3)``, one per image). Model tensors are float32 ``(n, 3, input_height,
+input_width)``.
 """
 
 from __future__ import annotations
@@ -267,15 +268,23 @@ def angle_ranking_loss(cos_nc: torch.Tensor, sharpness: torch.Tensor, margin: fl
 
 
 def _check_images(images, background) -> None:
+    """images (n, rows, cols, 3) with one background (rows, cols, 3) for all or (n, rows, cols, 3), one each."""
     if images.ndim != 4 or images.shape[-1] != 3:
         raise InputError(f"tactile images must be (n, rows, cols, 3), got shape {tuple(images.shape)}")
     bg_shape = tuple(np.shape(background))
-    if bg_shape != tuple(images.shape[1:]):
-        raise InputError(f"background shape {bg_shape} does not match image shape {tuple(images.shape[1:])}")
+    if bg_shape != tuple(images.shape[1:]) and bg_shape != tuple(images.shape):
+        raise InputError(f"background shape {bg_shape} does not match image shape {tuple(images.shape[1:])} "
+                         f"(one for all) nor {tuple(images.shape)} (one per image)")
+
+
+def _backgrounds_of(background, sl: slice):
+    """The background(s) of the images in slice ``sl``: the one for all, or theirs of one per image."""
+    return background[sl] if np.ndim(background) == 4 else background
 
 
 def _resized_difference(images: np.ndarray, background: np.ndarray, height: int, width: int) -> torch.Tensor:
-    """uint8 (n, R, C, 3), (R, C, 3) -> float32 (n, 3, height, width): area-resized ``image - background``."""
+    """uint8 (n, R, C, 3), (R, C, 3) or (n, R, C, 3) -> float32 (n, 3, height, width): area-resized
+    ``image - background``."""
     diff = torch.from_numpy(np.asarray(images, dtype=np.float32) - np.asarray(background, dtype=np.float32))
     return F.interpolate(diff.permute(0, 3, 1, 2), size=(height, width), mode="area").contiguous()
 
@@ -303,7 +312,8 @@ def _chunks(n: int, size: int) -> Iterator[slice]:
 
 def preprocess(images, background: np.ndarray, norm: Normalisation) -> torch.Tensor:
     """Images uint8 (n, 320, 240, 3) (a NumPy array or anything sliceable, e.g. an h5py dataset) and the
-    no-contact background (320, 240, 3) -> model input float32 (n, 3, norm.height, norm.width).
+    no-contact background (320, 240, 3), or (n, 320, 240, 3) one per image -> model input float32
+    (n, 3, norm.height, norm.width).
 
     Converted in chunks, so a large h5py dataset is never held as float in memory at full size.
     """
@@ -311,8 +321,8 @@ def preprocess(images, background: np.ndarray, norm: Normalisation) -> torch.Ten
     scale = torch.tensor(norm.scale, dtype=torch.float32)[None, :, None, None]
     out = torch.empty((images.shape[0], 3, norm.height, norm.width), dtype=torch.float32)
     for sl in _chunks(images.shape[0], _PREPROCESS_CHUNK):
-        out[sl] = _unscaled_input(images[sl], background, norm.height, norm.width, norm.peak_floor,
-                                  norm.offset) / scale
+        out[sl] = _unscaled_input(images[sl], _backgrounds_of(background, sl), norm.height, norm.width,
+                                  norm.peak_floor, norm.offset) / scale
     return out
 
 
@@ -514,7 +524,8 @@ def train(
 def encode(
     model: TactileAutoencoder, norm: Normalisation, images, background: np.ndarray, batch_size: int = 256
 ) -> np.ndarray:
-    """Images uint8 (n, 320, 240, 3) -> latents float32 (n, latent_dim), on the model's device.
+    """Images uint8 (n, 320, 240, 3) -> latents float32 (n, latent_dim), on the model's device; background
+    (320, 240, 3) for all, or (n, 320, 240, 3) one per image (several sensors, each with its own).
 
     Deterministic for a given batch_size and torch thread count (another batch split or thread count
     may change the last bits). Encode the background itself (``images = background[None]``) to get ``h_nc``.
@@ -525,7 +536,7 @@ def encode(
     out = np.empty((images.shape[0], model.to_latent.out_features), dtype=np.float32)
     with torch.no_grad():
         for sl in _chunks(images.shape[0], batch_size):
-            x = preprocess(images[sl], background, norm).to(device)
+            x = preprocess(images[sl], _backgrounds_of(background, sl), norm).to(device)
             out[sl] = model.encode(x).cpu().numpy()
     return out
 

@@ -25,7 +25,15 @@ from tactile6d.config import compose_config
 from tactile6d.contact import sample_surface
 from tactile6d.contacts import Contacts
 from tactile6d.errors import InputError
-from tactile6d.inputs import check_images, check_sensor_poses
+from tactile6d.inputs import (
+    backgrounds_per_sensor,
+    check_backgrounds,
+    check_bodies_apart,
+    check_images,
+    check_images_against_backgrounds,
+    check_sensor_poses,
+    warn_if_underdetermined,
+)
 from tactile6d.object_artifacts import load_surface_normals, load_surface_points
 from tactile6d.patch import PatchModel
 from tactile6d.run_artifacts import compact_hypotheses, expand_hypotheses
@@ -102,7 +110,8 @@ class Estimator:
     default conf/'s; normals (M, 3) the database points' outward normals, needed by
     ``select.normal_tol_deg`` and ``optimize.normal_weight``; surface: the object's surface samples
     (``contact.SurfaceSamples``, or a ``trimesh.Trimesh`` to sample), needed by ``rank.refine``;
-    no_contact (320, 240, 3) uint8 RGB, the sensors' no-contact image, and patch_model, the contact-patch
+    no_contact (320, 240, 3) uint8 RGB, the sensors' no-contact image, or (L, 320, 240, 3) each sensor's
+    own in sensor order (``estimate`` may pass others per call), and patch_model, the contact-patch
     calibration (``patch.PatchModel``), needed by ``select.contacts=patch``; mesh: the object
     (``trimesh.Trimesh``), needed by ``rank.agreement_weight`` > 0 (render-and-compare).
 
@@ -150,7 +159,7 @@ class Estimator:
         self.surface = surface
         if self.settings.select.reads_patches and (no_contact is None or patch_model is None):
             raise InputError("select.contacts=patch needs the sensors' no-contact image and the patch calibration")
-        self.no_contact = None if no_contact is None else check_images(np.asarray(no_contact)[None], 1)[0]
+        self.no_contact = None if no_contact is None else check_backgrounds(no_contact)
         self.patch_model = patch_model
         if self.settings.rank.uses_agreement and self.settings.select.reads_patches and mesh is None:
             raise InputError("rank.agreement_weight > 0 needs the object's mesh")
@@ -176,9 +185,10 @@ class Estimator:
         identification library's distractors: ``layout.distractors_dir(artifacts_dir)``); the
         autoencoder and the patch calibration always come from artifacts_dir.
 
-        background: the no-contact image (320, 240, 3) uint8 RGB of the sensor whose images will be
-        estimated; the encoder and the contact patches see each image minus it. Pass your own sensor's when it is not the
-        simulated one; by default it is ``render.background`` from the data directory
+        background: the no-contact image (320, 240, 3) uint8 RGB of the sensors whose images will be
+        estimated, or (L, 320, 240, 3) one per sensor in sensor order (a hand's units differ); the encoder
+        and the contact patches see each image minus its sensor's. Pass your own sensors' when they are not
+        the simulated one; by default it is ``render.background`` from the data directory
         (``steps.encode.load_background``), the background the databases and the paper's images were rendered over.
         """
         cfg = cfg if cfg is not None else _default_cfg()
@@ -191,7 +201,7 @@ class Estimator:
             db_angles, latent_nc = encode_step.load_database_angles(own, object_name)
             if background is None:
                 background = encode_step.load_background(cfg, data_dir)
-            background = check_images(np.asarray(background)[None], 1)[0]
+            background = check_backgrounds(background)
             encoder = encode_step.LatentAngleEncoder.from_checkpoint(
                 layout.ae_checkpoint(artifacts_dir), background, latent_nc
             )
@@ -210,28 +220,59 @@ class Estimator:
 
     # Each step is public so that a caller can run, time or inspect it alone.
 
-    def encode(self, images, contacts: Contacts | None = None, T_world_sensors=None) -> np.ndarray:
+    def backgrounds(self, n_sensors: int, backgrounds=None) -> np.ndarray | None:
+        """The no-contact images (L, 320, 240, 3) of n_sensors sensors, one per sensor: ``backgrounds``
+        ((320, 240, 3) for all or (L, 320, 240, 3), checked) when given, else this estimator's own
+        (``no_contact``); None when neither is there. InputError naming a bad background or count."""
+        chosen = self.no_contact if backgrounds is None else check_backgrounds(backgrounds)
+        return None if chosen is None else backgrounds_per_sensor(chosen, n_sensors)
+
+    def check_scene(self, T_world_sensors, images=None, backgrounds=None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The checks of one estimate's inputs (``tactile6d.inputs``) -> (T (L, 4, 4), images (L, 320, 240,
+        3) or None): poses, images, backgrounds and their counts; sensors whose bodies overlap; images that
+        are grey or look BGR against their sensor's no-contact image, when the images are read (method
+        'ours' or patch contacts) against one; a warning for one sensor."""
+        T = check_sensor_poses(T_world_sensors)
+        reads_images = self.settings.select.method == "ours" or self.settings.select.reads_patches
+        if reads_images or images is not None:
+            images = check_images(images, T.shape[0])
+        per_sensor = self.backgrounds(T.shape[0], backgrounds)
+        if reads_images and per_sensor is not None:
+            check_images_against_backgrounds(images, per_sensor)
+        check_bodies_apart(T)
+        warn_if_underdetermined(T.shape[0])
+        return T, images
+
+    def encode(self, images, contacts: Contacts | None = None, T_world_sensors=None, backgrounds=None) -> np.ndarray:
         """(L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad).
 
         With ``select.centre_images`` and contacts (as ``contacts`` returned, for sensors at
         T_world_sensors (L, 4, 4)), each image whose contact was read from it is first moved so that
         contact sits at the image centre (``steps.encode.centre_images``); without contacts, as is.
+        backgrounds: the sensors' no-contact images for this call ((320, 240, 3) for all or (L, 320, 240, 3)),
+        passed to the encoder as ``encoder(images, backgrounds)``; None: the estimator's own.
         """
         if self.encoder is None:
             raise InputError("this estimator has no image encoder (built for the baseline)")
         images = np.asarray(images)
+        own = None if backgrounds is None else self.backgrounds(images.shape[0], backgrounds)
         if contacts is None:
-            return np.asarray(self.encoder(images), dtype=np.float64).reshape(images.shape[0])
+            angles = self.encoder(images) if own is None else self.encoder(images, own)
+            return np.asarray(angles, dtype=np.float64).reshape(images.shape[0])
         return encode_step.read_angles(self.encoder, self.settings.select, images, contacts,
-                                       check_sensor_poses(T_world_sensors), self.no_contact)
+                                       check_sensor_poses(T_world_sensors),
+                                       self.backgrounds(images.shape[0], backgrounds), own)
 
-    def contacts(self, T_world_sensors, images=None) -> Contacts:
+    def contacts(self, T_world_sensors, images=None, backgrounds=None) -> Contacts:
         """The sensors' contacts (``select.contacts``): their landmarks, or each image's contact patch
-        (images (L, 320, 240, 3) uint8 RGB needed then)."""
+        (images (L, 320, 240, 3) uint8 RGB needed then, each read against its sensor's no-contact image:
+        ``backgrounds`` as for ``encode``, else the estimator's own)."""
         T = check_sensor_poses(T_world_sensors)
-        if self.settings.select.reads_patches:
-            images = check_images(images, T.shape[0])
-        return encode_step.read_contacts(self.settings.select, T, images, self.no_contact, self.patch_model)
+        if not self.settings.select.reads_patches:
+            return encode_step.read_contacts(self.settings.select, T)
+        images = check_images(images, T.shape[0])
+        return encode_step.read_contacts(self.settings.select, T, images, self.backgrounds(T.shape[0], backgrounds),
+                                         self.patch_model)
 
     def select(self, contacts: Contacts, angles: np.ndarray | None = None) -> Selection:
         """Candidate tuples for the sensors' contacts (``contacts``), given the images' angles (L,)."""
@@ -250,19 +291,21 @@ class Estimator:
         return rank_step.rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses,
                               self.settings.rank, self.surface, contacts, self.mesh)
 
-    def estimate(self, T_world_sensors, images=None) -> Estimate:
+    def estimate(self, T_world_sensors, images=None, backgrounds=None) -> Estimate:
         """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.
 
         Images are required by method 'ours'; the baseline ignores them (but checks them when given).
+        backgrounds: the sensors' no-contact images for this call, (320, 240, 3) uint8 RGB for all or
+        (L, 320, 240, 3) one per sensor in sensor order; None: the estimator's own (``from_artifacts``'s
+        ``background``). The inputs are checked first (``check_scene``): InputError for a bad one, an
+        ``inputs.UnderdeterminedPoseWarning`` for one sensor.
         """
         start = time.perf_counter()
-        T = check_sensor_poses(T_world_sensors)
+        T, images = self.check_scene(T_world_sensors, images, backgrounds)
         ours = self.settings.select.method == "ours"
-        if ours or images is not None:
-            images = check_images(images, T.shape[0])
         t0 = time.perf_counter()
-        contacts = self.contacts(T, images)
-        angles = self.encode(images, contacts, T) if ours else None
+        contacts = self.contacts(T, images, backgrounds)
+        angles = self.encode(images, contacts, T, backgrounds) if ours else None
         encode_seconds = time.perf_counter() - t0
         estimate = self.estimate_encoded(T, contacts, angles)
         steps = {k: estimate.seconds[k] for k in STEPS[1:]}

@@ -284,6 +284,8 @@ def orthonormal_frame(x_axis: np.ndarray) -> np.ndarray:
 
 # --- the paper's pose text format: one pose per line, "x y z ax ay az angle" -----------------------
 
+AXIS_LENGTH_TOL = 1e-3  # |length - 1| of a pose line's rotation axis; the paper's files are within 3e-16
+
 
 def pose_to_line(T: np.ndarray) -> str:
     """(4, 4) -> ``"x y z ax ay az angle"`` (metres, unit axis, radians)."""
@@ -304,10 +306,15 @@ def line_to_pose(line: str) -> np.ndarray:
     if not np.all(np.isfinite(values)):
         raise ValueError(f"NaN or infinite value in pose line {line.strip()!r}")
     axis = values[3:6]
-    if np.linalg.norm(axis) < 1e-12:
+    length = float(np.linalg.norm(axis))
+    if length < 1e-12:
         if abs(values[6]) > 1e-12:
             raise ValueError(f"zero rotation axis with a non-zero angle in pose line {line.strip()!r}")
         axis = np.array([1.0, 0.0, 0.0])
+    elif abs(length - 1.0) > AXIS_LENGTH_TOL:
+        # Normalising it quietly would hide a file in another format (a rotation vector, degrees, a quaternion).
+        raise ValueError(f"rotation axis of length {length:.6g}, not a unit vector (the format is 'x y z ax ay az "
+                         f"angle' with a unit axis and the angle in radians), in pose line {line.strip()!r}")
     return make_pose(axis_angle_to_rotmat(axis, values[6]), values[:3])
 
 
@@ -317,6 +324,14 @@ def poses_to_text(T: np.ndarray) -> str:
 
 
 def text_to_poses(text: str) -> np.ndarray:
-    """Text with one pose per non-empty line -> (n, 4, 4)."""
-    lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-    return np.stack([line_to_pose(line) for line in lines]) if lines else np.zeros((0, 4, 4))
+    """Text with one pose per non-empty line -> (n, 4, 4). ValueError starting ``line <k>:`` (1-based, as
+    in the file) for a bad line."""
+    poses = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        try:
+            poses.append(line_to_pose(line))
+        except ValueError as exc:
+            raise ValueError(f"line {number}: {exc}") from exc
+    return np.stack(poses) if poses else np.zeros((0, 4, 4))

@@ -42,7 +42,7 @@ from tactile6d.executor import (
     executor_from_config,
     process_cache,
 )
-from tactile6d.inputs import check_images, check_sensor_poses
+from tactile6d.inputs import check_sensor_poses
 from tactile6d.object_artifacts import require
 from tactile6d.optimize import use_cpu_devices_for
 from tactile6d.settings import Settings
@@ -252,18 +252,20 @@ class Identifier:
         """Where the objects are screened, for a log line."""
         return "this process" if self._executor is None else self._executor.describe()
 
-    def encode(self, T_world_sensors, images=None) -> SceneEncoding:
-        """Read the scene's images once: contacts and latents (module docstring, step 1)."""
+    def encode(self, T_world_sensors, images=None, backgrounds=None) -> SceneEncoding:
+        """Read the scene's images once: contacts and latents (module docstring, step 1), each image against
+        its sensor's no-contact image (backgrounds as for ``Estimator.estimate``; None: the library's own),
+        after the checks of ``Estimator.check_scene``."""
         first = self.full[self.names[0]]
-        T = check_sensor_poses(T_world_sensors)
-        ours = self.settings.select.method == "ours"
-        if ours or images is not None:
-            images = check_images(images, T.shape[0])
-        contacts = first.contacts(T, images)
-        if not ours:
+        T, images = first.check_scene(T_world_sensors, images, backgrounds)
+        contacts = first.contacts(T, images, backgrounds)
+        if self.settings.select.method != "ours":
             return SceneEncoding(contacts, None)
-        seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, first.no_contact)
-        return SceneEncoding(contacts, first.encoder.latents(seen))
+        per_sensor = first.backgrounds(T.shape[0], backgrounds)
+        seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, per_sensor)
+        # A call's own backgrounds go to the encoder; without, it reads against its own (as custom encoders do).
+        latents = first.encoder.latents(seen) if backgrounds is None else first.encoder.latents(seen, per_sensor)
+        return SceneEncoding(contacts, latents)
 
     def candidate(self, name: str, T_world_sensors, encoding: SceneEncoding) -> Candidate:
         """One object's screened estimate and features for an encoded scene."""
@@ -315,21 +317,23 @@ class Identifier:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def candidates(self, T_world_sensors, images=None) -> tuple[list[Candidate], SceneEncoding]:
+    def candidates(self, T_world_sensors, images=None, backgrounds=None) -> tuple[list[Candidate], SceneEncoding]:
         """Every object's screened candidate (steps 1-2), in library order, and the scene's encoding."""
-        encoding = self.encode(T_world_sensors, images)
+        encoding = self.encode(T_world_sensors, images, backgrounds)
         return self.screen(T_world_sensors, encoding), encoding
 
-    def identify(self, T_world_sensors, images=None) -> Identification:
+    def identify(self, T_world_sensors, images=None, backgrounds=None) -> Identification:
         """The library's objects ranked by calibrated probability for sensors at T_world_sensors (L, 4, 4)
-        with images (L, 320, 240, 3) uint8 RGB (required by method 'ours')."""
+        with images (L, 320, 240, 3) uint8 RGB (required by method 'ours'). backgrounds: the sensors'
+        no-contact images for this call, (320, 240, 3) for all or (L, 320, 240, 3) one per sensor; None:
+        the library's own (``from_artifacts``'s ``background``)."""
         if self.weights is None:
             raise InputError("this identifier has no calibrated weights (set identify.weights or run "
                              "`dvc repro calibrate_identify`)")
         start = time.perf_counter()
         t0 = time.perf_counter()
         T = check_sensor_poses(T_world_sensors)
-        encoding = self.encode(T, images)
+        encoding = self.encode(T, images, backgrounds)
         seconds = {"encode": time.perf_counter() - t0}
         t0 = time.perf_counter()
         found, guess, guess_seconds = self._screen_and_guess(T, encoding)

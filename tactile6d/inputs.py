@@ -1,10 +1,16 @@
-"""Checks of what a caller hands the estimator: sensor poses and tactile images.
+"""Checks of what a caller hands the estimator: sensor poses, tactile images and the sensors'
+no-contact images (backgrounds).
 
 Each check returns the input as the array the steps take, or raises InputError naming the first
-problem, so that a robot's mistake is reported before any work is done.
+problem, so that a robot's mistake is reported before any work is done. Beyond shapes and types, inputs
+that are plausibly wrong are refused too: a grey image, an image whose red and blue look swapped against
+its no-contact image (OpenCV's BGR order), sensors whose bodies overlap; one sensor only is accepted with
+a warning. They run once per estimate and cost well under a millisecond per sensor.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -48,3 +54,137 @@ def check_images(images, n_sensors: int) -> np.ndarray:
         if image.dtype != np.uint8:
             raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8")
     return np.stack([np.asarray(image) for image in images])
+
+
+# --- no-contact images, one for all sensors or one per sensor -------------------------------------------
+
+
+def check_backgrounds(backgrounds) -> np.ndarray:
+    """The sensors' no-contact images: (320, 240, 3) uint8 RGB for every sensor, or (L, 320, 240, 3) (an
+    array or a sequence of arrays) one per sensor, in sensor order -> that array, checked: InputError
+    naming the background when it has the wrong shape or dtype or is grey."""
+    if isinstance(backgrounds, (list, tuple)):
+        if len(backgrounds) == 0:
+            raise InputError("no background image given: pass one for all sensors or one per sensor")
+        for i, background in enumerate(backgrounds):
+            _check_background(np.asarray(background), f"background {i}")
+        return np.stack([np.asarray(b) for b in backgrounds])
+    backgrounds = np.asarray(backgrounds)
+    if backgrounds.ndim == 4:
+        if backgrounds.shape[0] == 0:
+            raise InputError("no background image given: pass one for all sensors or one per sensor")
+        for i, background in enumerate(backgrounds):
+            _check_background(background, f"background {i}")
+    else:
+        _check_background(backgrounds, "background")
+    return backgrounds
+
+
+def _check_background(background: np.ndarray, name: str) -> None:
+    if background.shape != TACTILE_IMAGE_SHAPE:
+        raise InputError(f"{name} has shape {background.shape}, a DIGIT no-contact image is (320, 240, 3): "
+                         "320 rows x 240 columns x RGB (or give (L, 320, 240, 3), one per sensor)")
+    if background.dtype != np.uint8:
+        raise InputError(f"{name} has dtype {background.dtype}, no-contact images must be uint8 like the "
+                         "tactile images")
+    if is_grey(background):
+        raise InputError(f"{name} is grey (its three channels are equal everywhere), but a DIGIT image is "
+                         "RGB colour: read it with tactile6d.io.read_tactile_image")
+
+
+def backgrounds_per_sensor(backgrounds: np.ndarray, n_sensors: int) -> np.ndarray:
+    """Checked backgrounds (``check_backgrounds``) -> (L, 320, 240, 3), one per sensor: a single one is
+    repeated (a read-only view, no copy); InputError when their count is not the sensors'."""
+    if backgrounds.ndim == 3:
+        return np.broadcast_to(backgrounds, (n_sensors, *backgrounds.shape))
+    if backgrounds.shape[0] != n_sensors:
+        raise InputError(f"{backgrounds.shape[0]} background images for {n_sensors} sensors: give one for all "
+                         "sensors or one per sensor, in sensor order")
+    return backgrounds
+
+
+# --- images that are plausibly read wrong ---------------------------------------------------------------
+
+# Every DIGIT reading is compared with its own no-contact image on a grid of every BGR_CHECK_STEP-th pixel
+# (0.3 ms an image). The paper's 120 images match the default background within a median of 24 grey levels
+# (channel sum) and 58 or more with R and B swapped; swapped, the other way round (tests/test_inputs.py).
+BGR_CHECK_STEP = 4
+BGR_RATIO = 2.0  # the swapped image must match at least this many times better ...
+BGR_MIN_GAIN = 12.0  # ... and by this many grey levels (channel sum), so that noise never decides
+
+
+def is_grey(image: np.ndarray) -> bool:
+    """Whether a (..., 3) image's three channels are equal everywhere (a grey image stacked to RGB)."""
+    return bool(np.array_equal(image[..., 0], image[..., 1]) and np.array_equal(image[..., 1], image[..., 2]))
+
+
+def background_mismatch(image: np.ndarray, background: np.ndarray) -> tuple[float, float]:
+    """How far a (320, 240, 3) uint8 image is from its no-contact image, as given and with R and B swapped:
+    the median over a pixel grid of the channel-summed absolute difference (grey levels). The median
+    ignores the contact patch, which covers far less than half of the image."""
+    grid = image[::BGR_CHECK_STEP, ::BGR_CHECK_STEP].astype(np.int16)
+    reference = background[::BGR_CHECK_STEP, ::BGR_CHECK_STEP].astype(np.int16)
+    as_given = float(np.median(np.abs(grid - reference).sum(axis=-1)))
+    swapped = float(np.median(np.abs(grid[..., ::-1] - reference).sum(axis=-1)))
+    return as_given, swapped
+
+
+def looks_like_bgr(image: np.ndarray, background: np.ndarray) -> bool:
+    """Whether an RGB image matches its no-contact image far better with R and B swapped (``BGR_RATIO``,
+    ``BGR_MIN_GAIN``): the image was most likely passed in OpenCV's BGR order."""
+    as_given, swapped = background_mismatch(image, background)
+    return as_given > BGR_RATIO * swapped and as_given - swapped > BGR_MIN_GAIN
+
+
+def check_images_against_backgrounds(images: np.ndarray, backgrounds: np.ndarray) -> None:
+    """InputError naming the first image (L, 320, 240, 3) uint8 that is grey or looks BGR against its own
+    no-contact image (backgrounds (L, 320, 240, 3), ``backgrounds_per_sensor``)."""
+    for i, (image, background) in enumerate(zip(images, backgrounds)):
+        if is_grey(image):
+            raise InputError(f"image {i} is grey (its three channels are equal everywhere), but a DIGIT image "
+                             "is RGB colour: read it with tactile6d.io.read_tactile_image")
+        if looks_like_bgr(image, background):
+            as_given, swapped = background_mismatch(image, background)
+            raise InputError(f"image {i} looks like BGR: it differs from its no-contact image by {as_given:.0f} "
+                             f"grey levels as given and by {swapped:.0f} with red and blue swapped; pass RGB "
+                             "images: use read_tactile_image or convert with cv2.cvtColor(image, "
+                             "cv2.COLOR_BGR2RGB)")
+
+
+# --- sensor layouts that cannot be right, or say little ----------------------------------------------
+
+# Sensors whose bodies overlap by more than this (m) on every axis are an error; less is taken for a
+# calibration error of sensors mounted side by side.
+BODY_OVERLAP_MARGIN = 0.5e-3
+
+
+class UnderdeterminedPoseWarning(UserWarning):
+    """One sensor only: the pose is under-determined (see ``warn_if_underdetermined``)."""
+
+
+def check_bodies_apart(T_world_sensors: np.ndarray, margin: float = BODY_OVERLAP_MARGIN) -> None:
+    """InputError naming the first two sensors (L, 4, 4) whose DIGIT bodies (``sensor.BOX_CENTER``,
+    ``sensor.BOX_HALF_EXTENTS``, each shrunk by ``margin``) overlap: two units cannot be in one place."""
+    from tactile6d.scenes import boxes_overlap
+    from tactile6d.sensor import BOX_CENTER, BOX_HALF_EXTENTS
+
+    T = np.asarray(T_world_sensors, dtype=np.float64)
+    centres = T[:, :3, 3] + T[:, :3, :3] @ BOX_CENTER
+    # Boxes whose bounding spheres are apart need no 15-axis test.
+    reach = 2.0 * float(np.linalg.norm(BOX_HALF_EXTENTS))
+    for j in range(len(T)):
+        for i in range(j):
+            if np.linalg.norm(centres[j] - centres[i]) < reach and boxes_overlap(
+                    T[i], T[j], half=BOX_HALF_EXTENTS - margin):
+                raise InputError(f"sensors {i} and {j} overlap: their DIGIT bodies intersect, so their poses "
+                                 "cannot both be right (check the sensor order and the hand's calibration)")
+
+
+def warn_if_underdetermined(n_sensors: int, stacklevel: int = 4) -> None:
+    """A warning (``UnderdeterminedPoseWarning``) for one sensor: a single contact does not observe the
+    rotation about its normal nor a slide along the surface, so the estimate is one of many that fit.
+    stacklevel: as ``warnings.warn``'s; 4 names the line that called ``Estimator.estimate``."""
+    if n_sensors == 1:
+        warnings.warn("one sensor only: the pose is under-determined (the rotation about the contact normal "
+                      "and sliding along the surface are not observed)", UnderdeterminedPoseWarning,
+                      stacklevel=stacklevel)

@@ -198,7 +198,8 @@ def read_scene_dir(directory: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
     """A scene folder in the paper's triplet layout -> T_world_sensors (L, 4, 4), images (L, 320, 240, 3).
 
     The folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor) and
-    ``Image_heatmap_<i>.png`` for i = 0..L-1. InputError names what is missing or inconsistent.
+    ``Image_heatmap_<i>.png`` for i = 0..L-1 (and, optionally, the sensors' no-contact images:
+    ``read_scene_backgrounds``). InputError names what is missing or inconsistent.
     """
     from tactile6d.errors import InputError
     from tactile6d.geometry import text_to_poses
@@ -221,3 +222,43 @@ def read_scene_dir(directory: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
     if len(image_files) != len(poses):
         raise InputError(f"{directory}: {len(image_files)} images but {len(poses)} sensor poses")
     return poses, np.stack([read_tactile_image(p) for p in expected])
+
+
+SCENE_BACKGROUND = "background_{}.png"  # sensor i's own no-contact image in a scene folder
+
+
+def read_background_images(paths: list[str | os.PathLike]) -> np.ndarray:
+    """No-contact image files -> (320, 240, 3) uint8 RGB for one file (every sensor's), or
+    (L, 320, 240, 3) for L files (one per sensor, in sensor order). InputError naming the file that is
+    missing or unreadable."""
+    from tactile6d.errors import InputError
+
+    if len(paths) == 0:
+        raise InputError("no background image file given")
+    images = []
+    for path in paths:
+        if not Path(path).is_file():
+            raise InputError(f"background {path} not found")
+        try:
+            images.append(read_tactile_image(path))
+        except InputError as exc:
+            raise InputError(f"background {exc}") from exc
+    return images[0] if len(images) == 1 else np.stack(images)
+
+
+def read_scene_backgrounds(directory: str | os.PathLike, n_sensors: int) -> np.ndarray | None:
+    """The sensors' own no-contact images of a scene folder, ``background_<i>.png`` for i = 0..L-1 beside
+    ``Image_heatmap_<i>.png`` -> (L, 320, 240, 3) uint8 RGB, or None when the folder holds none.
+    InputError when only some sensors have one (naming the missing ones) or one is unreadable."""
+    from tactile6d.errors import InputError
+
+    directory = Path(directory)
+    expected = [directory / SCENE_BACKGROUND.format(i) for i in range(n_sensors)]
+    present = [p.is_file() for p in expected]
+    if not any(present):
+        return None
+    if not all(present):
+        missing = ", ".join(p.name for p, here in zip(expected, present) if not here)
+        raise InputError(f"{directory}: {sum(present)} of {n_sensors} sensors have a no-contact image "
+                         f"background_<i>.png; {missing} missing (give every sensor's, or none)")
+    return read_background_images(expected)[None] if n_sensors == 1 else read_background_images(expected)

@@ -1,7 +1,11 @@
 """``tactile6d estimate``: an object's pose from scene folders in the paper's triplet layout.
 
 Each scene folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor, world
-frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image). Scenes are given with
+frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``background_<i>.png``
+(sensor i's own no-contact image, for every sensor): the images are then read against those, as a note
+on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
+order), which wins. One sensor only is estimated with a ``warning:`` line on stderr (the pose is
+under-determined). Scenes are given with
 ``--scene DIR [DIR ...]`` and/or ``--scenes-root DIR`` (every folder under DIR that holds a
 ``poses_sensors.txt``, in natural order: ``triplet_2`` before ``triplet_10``). All scenes run in one
 process; each object's artifacts are read once, from ``--artifacts`` (default: the config's
@@ -39,6 +43,7 @@ import json
 import re
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +54,8 @@ from tactile6d.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.estimator import Estimate, Estimator
 from tactile6d.optimize import use_cpu_devices_for
 from tactile6d.geometry import pose_to_line
-from tactile6d.io import read_scene_dir, read_tactile_image
+from tactile6d.inputs import UnderdeterminedPoseWarning
+from tactile6d.io import read_background_images, read_scene_backgrounds, read_scene_dir
 
 AUTO = "auto"
 # Below this many scenes a progress bar is more noise than help.
@@ -76,18 +82,28 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--top", type=int, default=None, help="poses to report (sets rank.top_k; default 5)")
     parser.add_argument("--json", action="store_true", help="print one JSON object per scene (JSON Lines)")
-    parser.add_argument("--background", default=None,
-                        help="the sensor's own no-contact image (PNG, 240 x 320); default: render.background")
+    parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
+                        help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
+                             "per sensor in sensor order; default: each scene's background_<i>.png, else "
+                             "render.background")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     # ``--scene A B select.N=5`` puts the override among the folders (nargs='+' is greedy).
     moved = [word for word in args.scene if is_override(word)]
     args.scene = [word for word in args.scene if not is_override(word)]
-    args.overrides = moved + list(args.overrides)
+    args.background, args.overrides = split_overrides(args.background, moved + list(args.overrides))
     if not args.scene and args.scenes_root is None:
         parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
     return args
+
+
+def split_overrides(words: list[str] | None, overrides: list[str]) -> tuple[list[str] | None, list[str]]:
+    """(the words of a greedy list option, e.g. ``--background``'s files, without the overrides that landed
+    among them; ``overrides`` with those moved in front)."""
+    if words is None:
+        return None, overrides
+    return [w for w in words if not is_override(w)], [w for w in words if is_override(w)] + overrides
 
 
 def is_override(word: str) -> bool:
@@ -237,10 +253,36 @@ def summary(result: Estimate, cfg) -> list[str]:
 
 
 def estimate_scene(scene: Path, name: str, cache: EstimatorCache) -> tuple[Estimate, float]:
-    """One scene's estimate and the seconds spent loading its object's artifacts for it."""
+    """One scene's estimate and the seconds spent loading its object's artifacts for it; its notes and
+    warnings (``scene_backgrounds``, ``warnings_to_lines``) go to stderr."""
     T_world_sensors, images = read_scene_dir(scene)
+    backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), cache.background is not None)
+    if note:
+        write(note, sys.stderr)
     estimator, load_seconds = cache.get(name)
-    return estimator.estimate(T_world_sensors, images), load_seconds
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnderdeterminedPoseWarning)
+        result = estimator.estimate(T_world_sensors, images, backgrounds)
+    for line in warnings_to_lines(scene, caught):
+        write(line, sys.stderr)
+    return result, load_seconds
+
+
+def scene_backgrounds(scene: Path, n_sensors: int, given: bool) -> tuple[np.ndarray | None, str | None]:
+    """The scene folder's own no-contact images (``io.read_scene_backgrounds``; None when it has none, or
+    when ``--background`` was ``given``, which wins) and a note for stderr saying which are used."""
+    backgrounds = read_scene_backgrounds(scene, n_sensors)
+    if backgrounds is None:
+        return None, None
+    if given:
+        return None, f"note: {scene}: --background given, the folder's background_<i>.png are not used"
+    return backgrounds, (f"note: {scene}: each sensor's image is read against its own no-contact image "
+                         f"background_<i>.png (i = 0..{n_sensors - 1})")
+
+
+def warnings_to_lines(scene: Path, caught: list) -> list[str]:
+    """Caught warnings -> one ``warning: <scene>: <message>`` line each (the CLI's form of the API's warnings)."""
+    return [f"warning: {scene}: {' '.join(str(w.message).split())}" for w in caught]
 
 
 def as_json(scene: Path, name: str, result: Estimate, cfg, load_seconds: float) -> str:
@@ -319,7 +361,7 @@ def main(argv: list[str]) -> int:
     if args.object != AUTO:
         known.check(args.object)
     scenes = collect_scenes(args)
-    background = read_tactile_image(args.background) if args.background else None
+    background = read_background_images(args.background) if args.background else None
     cache = EstimatorCache(artifacts, cfg, background)
 
     if len(scenes) == 1 and args.scenes_root is None:

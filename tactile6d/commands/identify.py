@@ -8,7 +8,10 @@ and scored with the weights the ``calibrate_identify`` stage fitted on the calib
 (``identify.calibration_scenes``; ``tactile6d.identifier``). Output: one line per object, most probable first, with its probability,
 score and best pose (``x y z ax ay az angle``, world frame), objects that match nothing last; then the
 time per step. ``--json``: one JSON object (``Identification.to_dict``). Errors: one ``error:`` line and
-exit status 2; objects without artifacts are all named in that one line.
+exit status 2; objects without artifacts are all named in that one line. The sensors' no-contact images:
+``--background`` (one file for every sensor, or one per sensor in sensor order), else the scene folder's
+``background_<i>.png`` when it holds them (said on stderr), else ``render.background``; as for
+``tactile6d estimate``, one sensor only gives a ``warning:`` line.
 
 Config overrides (``key=value``) pass through, e.g. ``identify.screen.N=1000`` or
 ``identify.weights=[1,1,10]``.
@@ -19,13 +22,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
+from pathlib import Path
 
-from tactile6d.commands.estimate import KnownObjects, is_override
+from tactile6d.commands.estimate import (
+    KnownObjects,
+    is_override,
+    scene_backgrounds,
+    split_overrides,
+    warnings_to_lines,
+)
 from tactile6d.config import compose_config
 from tactile6d.errors import InputError
 from tactile6d.geometry import pose_to_line
 from tactile6d.identifier import Identification, Identifier
-from tactile6d.io import read_scene_dir, read_tactile_image
+from tactile6d.inputs import UnderdeterminedPoseWarning
+from tactile6d.io import read_background_images, read_scene_dir
 from tactile6d.optimize import use_cpu_devices_for
 
 
@@ -39,10 +51,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="the candidate objects (default: every object with artifacts)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--background", default=None,
-                        help="the sensor's own no-contact image (PNG, 240 x 320); default: render.background")
+    parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
+                        help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
+                             "per sensor in sensor order; default: the scene's background_<i>.png, else "
+                             "render.background")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
+    args.background, args.overrides = split_overrides(args.background, list(args.overrides))
     if args.objects:  # ``--objects A B select.N=5`` puts the override among the names
         args.overrides = [w for w in args.objects if is_override(w)] + list(args.overrides)
         args.objects = [w for w in args.objects if not is_override(w)]
@@ -87,9 +102,16 @@ def main(argv: list[str]) -> int:
     known = KnownObjects(artifacts, cfg)
     objects, distractors = library_of(args.objects, known)
     T_world_sensors, images = read_scene_dir(args.scene)
-    background = read_tactile_image(args.background) if args.background else None
+    background = read_background_images(args.background) if args.background else None
+    backgrounds, note = scene_backgrounds(Path(args.scene), len(T_world_sensors), background is not None)
+    if note:
+        print(note, file=sys.stderr)
     with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors) as identifier:
-        result = identifier.identify(T_world_sensors, images)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UnderdeterminedPoseWarning)
+            result = identifier.identify(T_world_sensors, images, backgrounds)
+    for line in warnings_to_lines(Path(args.scene), caught):
+        print(line, file=sys.stderr)
     print(json.dumps({"scene": str(args.scene), **result.to_dict()}) if args.json else as_text(result))
     return 0
 

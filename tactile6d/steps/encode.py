@@ -65,7 +65,13 @@ class LatentAngleEncoder:
 
     The angle is ``arccos(cos_sim(h, h_nc))`` with ``h_nc`` the no-contact latent the database angles
     were computed against (from latents.h5), so image and database angles are comparable. background:
-    the no-contact image (320, 240, 3) uint8 RGB of the sensor whose images are encoded.
+    the no-contact image (320, 240, 3) uint8 RGB of the sensors whose images are encoded, or
+    (L, 320, 240, 3) one per sensor, in sensor order; a call may pass its own (``backgrounds``).
+
+    One ``h_nc`` serves every sensor, whatever its background: the model sees ``image - background``, so
+    each sensor's own no-contact image is the same input (zero) and has the same latent; a per-sensor
+    no-contact latent would be that one repeated, and the database's ``h_nc`` (of its noisy no-contact
+    image) is the one its angles are measured from.
     """
 
     def __init__(self, model, norm, background: np.ndarray, latent_nc: np.ndarray):
@@ -78,12 +84,14 @@ class LatentAngleEncoder:
         model, norm, _ = load_checkpoint(path)
         return cls(model, norm, background, latent_nc)
 
-    def __call__(self, images: np.ndarray) -> np.ndarray:
-        return self.angles(self.latents(images))
+    def __call__(self, images: np.ndarray, backgrounds: np.ndarray | None = None) -> np.ndarray:
+        return self.angles(self.latents(images, backgrounds))
 
-    def latents(self, images: np.ndarray) -> np.ndarray:
-        """(L, 320, 240, 3) uint8 RGB -> (L, latent_dim) latents: the network's part of the encoding."""
-        return encode(self.model, self.norm, images, self.background)
+    def latents(self, images: np.ndarray, backgrounds: np.ndarray | None = None) -> np.ndarray:
+        """(L, 320, 240, 3) uint8 RGB -> (L, latent_dim) latents: the network's part of the encoding, each
+        image against its sensor's no-contact image: ``backgrounds`` ((320, 240, 3) for all or
+        (L, 320, 240, 3)) when given, else this encoder's ``background``."""
+        return encode(self.model, self.norm, images, self.background if backgrounds is None else backgrounds)
 
     def angles(self, latents: np.ndarray) -> np.ndarray:
         """(L, latent_dim) latents -> (L,) angles (rad) against this encoder's no-contact latent."""
@@ -102,20 +110,30 @@ class LatentAngleEncoder:
 def centre_images(images: np.ndarray, no_contact: np.ndarray, contacts: Contacts, T_world_sensors: np.ndarray) -> np.ndarray:
     """images (L, 320, 240, 3) uint8 RGB -> the same, each image whose contact was read from its patch
     (``contacts.from_patch``) moved so that contact appears at the image centre (``patch.centre_contact``);
-    the others unchanged. no_contact (320, 240, 3) uint8 RGB; T_world_sensors (L, 4, 4)."""
+    the others unchanged. no_contact (320, 240, 3) uint8 RGB for all sensors, or (L, 320, 240, 3) one per
+    sensor; T_world_sensors (L, 4, 4)."""
     out = np.array(images, copy=True)
     for i in np.flatnonzero(contacts.from_patch):
         point = transform_points(invert_pose(T_world_sensors[i]), contacts.points[i][None])[0]
-        out[i] = centre_contact(images[i], no_contact, point)
+        out[i] = centre_contact(images[i], sensor_background(no_contact, i), point)
     return out
 
 
+def sensor_background(no_contact: np.ndarray, i: int) -> np.ndarray:
+    """Sensor i's no-contact image (320, 240, 3) of one for all (320, 240, 3) or one per sensor (L, 320, 240, 3)."""
+    return no_contact[i] if no_contact.ndim == 4 else no_contact
+
+
 def read_angles(encoder, settings: SelectSettings, images: np.ndarray, contacts: Contacts,
-                T_world_sensors: np.ndarray, no_contact: np.ndarray | None) -> np.ndarray:
+                T_world_sensors: np.ndarray, no_contact: np.ndarray | None,
+                backgrounds: np.ndarray | None = None) -> np.ndarray:
     """The images' latent angles (L,) rad by ``encoder`` (images (L, 320, 240, 3) uint8 RGB -> (L,)),
-    after ``centre_images`` when ``settings.centres_images``. contacts: as ``read_contacts`` returned."""
+    after ``centre_images`` when ``settings.centres_images``. contacts: as ``read_contacts`` returned;
+    no_contact as for ``centre_images``. backgrounds: passed on to the encoder (``encoder(images,
+    backgrounds)``) when given, for a call with its own no-contact images; None: the encoder's own."""
     images = images_to_encode(settings, images, contacts, T_world_sensors, no_contact)
-    return np.asarray(encoder(images), dtype=np.float64).reshape(len(images))
+    angles = encoder(images) if backgrounds is None else encoder(images, backgrounds)
+    return np.asarray(angles, dtype=np.float64).reshape(len(images))
 
 
 def images_to_encode(settings: SelectSettings, images: np.ndarray, contacts: Contacts,
@@ -142,10 +160,12 @@ def read_contacts(
     image's contact patch.
 
     T_world_sensors (L, 4, 4); images (L, 320, 240, 3) uint8 RGB, no_contact (320, 240, 3) uint8 RGB
-    (the sensor's no-contact image) and model (the patch calibration) are needed for patches.
+    (the sensors' no-contact image) or (L, 320, 240, 3) (each sensor's own) and model (the patch
+    calibration) are needed for patches.
     """
     if not settings.reads_patches:
         return sensors_to_landmark_contacts(T_world_sensors)
     if images is None or no_contact is None or model is None:
         raise InputError("select.contacts=patch needs the images, the no-contact image and the patch calibration")
-    return patches_to_contacts([image_to_patch(im, no_contact, model) for im in images], T_world_sensors)
+    return patches_to_contacts([image_to_patch(im, sensor_background(no_contact, i), model)
+                                for i, im in enumerate(images)], T_world_sensors)
