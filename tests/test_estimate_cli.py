@@ -361,3 +361,122 @@ def test_bench_batch_figures_from_arrival_times():
     assert out["startup_s"] == pytest.approx(3.0) and out["first_load_s"] == 0.5
     assert out["per_scene_s"] == pytest.approx(0.5) and out["estimate_median_s"] == pytest.approx(0.3)
     assert out["later_loads"] == 1 and out["later_load_median_s"] == 0.3
+
+
+# --- the sensors' own no-contact images ---------------------------------------------------------------
+
+# Three units that differ: each sees the same no-contact scene in its own flat colour.
+UNIT_COLOURS = [(90, 100, 95), FLAT, (104, 110, 106)]
+
+
+def units_scene(scene, folder, backgrounds_in_folder=()):
+    """The scene with each sensor's image in its unit's colour (no contact anywhere), and the units'
+    no-contact images background_<i>.png for the sensors in ``backgrounds_in_folder``."""
+    copy_scene(scene, folder)
+    for i, colour in enumerate(UNIT_COLOURS):
+        write_tactile_image(folder / f"Image_heatmap_{i}.png", np.full((320, 240, 3), colour, np.uint8))
+    for i in backgrounds_in_folder:
+        write_tactile_image(folder / f"background_{i}.png", np.full((320, 240, 3), UNIT_COLOURS[i], np.uint8))
+    return folder
+
+
+def write_backgrounds(folder, colours):
+    paths = []
+    for i, colour in enumerate(colours):
+        paths.append(str(folder / f"unit_{i}.png"))
+        write_tactile_image(paths[-1], np.full((320, 240, 3), colour, np.uint8))
+    return paths
+
+
+def angles_of(out):
+    return np.asarray(json.loads(out)["selection"]["angles"])
+
+
+def test_one_background_per_sensor_from_files_or_the_scene_folder(capsys, artifacts, scene, tmp_path):
+    """Read against its own unit's no-contact image every sensor reads as no contact (one angle for all);
+    against one background for all, the units that differ from it do not."""
+    from test_estimator import write_tiny_autoencoder
+
+    write_tiny_autoencoder(artifacts, 500, "prim_box")
+    folder = units_scene(scene, tmp_path / "units")
+    common = ["--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts), "--json"]
+    one = write_backgrounds(tmp_path, [FLAT])
+    code, out, err = run(capsys, *common, "--background", *one, "select.N=500")
+    assert code == 0, err
+    assert np.ptp(angles_of(out)) > 1e-4
+    own = write_backgrounds(tmp_path, UNIT_COLOURS)
+    code, out, err = run(capsys, *common, "--background", *own, "select.N=500")
+    assert code == 0, err
+    assert np.ptp(angles_of(out)) < 1e-6
+    by_files = angles_of(out)
+
+    in_folder = units_scene(scene, tmp_path / "units_with_backgrounds", backgrounds_in_folder=range(3))
+    common[3] = str(in_folder)
+    code, out, err = run(capsys, *common, "select.N=500")
+    assert code == 0, err
+    np.testing.assert_array_equal(angles_of(out), by_files)
+    assert err == (f"note: {in_folder}: each sensor's image is read against its own no-contact image "
+                   "background_<i>.png (i = 0..2)\n")
+    # --background wins over the folder's
+    code, out, err = run(capsys, *common, "--background", *one, "select.N=500")
+    assert code == 0 and np.ptp(angles_of(out)) > 1e-4
+    assert err == f"note: {in_folder}: --background given, the folder's background_<i>.png are not used\n"
+
+
+@pytest.mark.parametrize("case,message", [
+    ("two files", "2 background images for 3 sensors"),
+    ("missing file", "background /nonexistent/unit.png not found"),
+    ("grey file", "background is grey"),
+    ("not an image", "not a readable image"),
+    ("some in folder", "1 of 3 sensors have a no-contact image background_<i>.png; background_1.png, "
+                       "background_2.png missing"),
+    ("not a unit axis", "poses_sensors.txt: line 2: rotation axis of length 2, not a unit vector"),
+])
+def test_bad_backgrounds_and_pose_files_are_one_error_line(capsys, artifacts, scene, tmp_path, case, message):
+    from test_estimator import write_tiny_autoencoder
+
+    write_tiny_autoencoder(artifacts, 500, "prim_box")
+    folder = units_scene(scene, tmp_path / "s", backgrounds_in_folder=[0] if case == "some in folder" else [])
+    options = []
+    if case == "two files":
+        options = ["--background", *write_backgrounds(tmp_path, UNIT_COLOURS[:2])]
+    elif case == "missing file":
+        options = ["--background", "/nonexistent/unit.png"]
+    elif case == "grey file":
+        options = ["--background", *write_backgrounds(tmp_path, [(100, 100, 100)])]
+    elif case == "not an image":
+        (tmp_path / "bg.png").write_text("not a PNG")
+        options = ["--background", str(tmp_path / "bg.png")]
+    elif case == "not a unit axis":
+        lines = (folder / "poses_sensors.txt").read_text().splitlines()
+        fields = lines[1].split()
+        lines[1] = " ".join(fields[:3] + [str(2 * float(v)) for v in fields[3:6]] + fields[6:])
+        (folder / "poses_sensors.txt").write_text("\n".join(lines) + "\n")
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
+                         *options, "select.N=500")
+    assert code == 2 and out == ""
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+
+
+def test_one_sensor_is_estimated_with_a_warning_line(capsys, artifacts, scene, tmp_path):
+    folder = copy_scene(scene, tmp_path / "one")
+    first = (folder / "poses_sensors.txt").read_text().splitlines()[0]
+    (folder / "poses_sensors.txt").write_text(first + "\n")
+    for i in (1, 2):
+        (folder / f"Image_heatmap_{i}.png").unlink()
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
+                         *BASELINE)
+    assert code == 0, err
+    assert err == (f"warning: {folder}: one sensor only: the pose is under-determined (the rotation about the "
+                   "contact normal and sliding along the surface are not observed)\n")
+    assert g.is_rotation(g.line_to_pose(out.splitlines()[0])[:3, :3])
+
+
+def test_overlapping_sensors_are_one_error_line(capsys, artifacts, scene, tmp_path):
+    folder = copy_scene(scene, tmp_path / "overlap")
+    lines = (folder / "poses_sensors.txt").read_text().splitlines()
+    (folder / "poses_sensors.txt").write_text("\n".join([lines[0], lines[1], lines[0]]) + "\n")
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
+                         *BASELINE)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "sensors 0 and 2 overlap" in err

@@ -447,3 +447,61 @@ def test_the_calibration_stage_fits_weights_on_the_calibration_scenes(prim_artif
     assert out["top1_on_calibration_scenes"] == 1.0
     # the identifier loads these weights when identify.weights is null
     np.testing.assert_array_equal(load_weights(artifacts), out["weights"])
+
+
+# ---- the sensors' own no-contact images ----------------------------------------------------------
+
+UNIT_COLOURS = [(90, 100, 95), (97, 105, 100), (104, 110, 106)]  # three units' flat no-contact colours
+
+
+@pytest.fixture(scope="module")
+def units_library(prim_artifacts, tmp_path_factory):
+    """A copy of the primitives' artifacts with the tiny autoencoder (method 'ours'), and a scene of
+    prim_box whose three units each see no contact in their own colour, with background_<i>.png."""
+    import shutil
+
+    from test_estimator import write_tiny_autoencoder
+
+    from tactile6d.io import write_tactile_image
+
+    root = tmp_path_factory.mktemp("units")
+    artifacts = root / "artifacts"
+    shutil.copytree(prim_artifacts, artifacts)
+    for name in ("prim_box", "prim_cylinder"):
+        write_tiny_autoencoder(artifacts, 500, name)
+    scene = root / "scene"
+    scene.mkdir()
+    (scene / "poses_sensors.txt").write_text(g.poses_to_text(touching_sensors(artifacts, "prim_box", BOX_TOUCHES)))
+    for i, colour in enumerate(UNIT_COLOURS):
+        write_tactile_image(scene / f"Image_heatmap_{i}.png", np.full((320, 240, 3), colour, np.uint8))
+        write_tactile_image(root / f"unit_{i}.png", np.full((320, 240, 3), colour, np.uint8))
+    shutil.copytree(scene, root / "scene_with_backgrounds")
+    for i in range(3):
+        shutil.copy(root / f"unit_{i}.png", root / "scene_with_backgrounds" / f"background_{i}.png")
+    return root
+
+
+def identify_json(capsys, root, scene, *options):
+    code = cli_main(["identify", "--scene", str(root / scene), "--objects", "prim_box", "prim_cylinder",
+                     "--artifacts", str(root / "artifacts"), "--json", *options, "identify.weights=[1,1,1]",
+                     "select.N=200", "identify.screen.N=200"])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_identify_reads_each_sensor_against_its_own_background(capsys, units_library):
+    import json
+
+    root = units_library
+    files = [str(root / f"unit_{i}.png") for i in range(3)]
+    code, by_files, err = identify_json(capsys, root, "scene", "--background", *files)
+    assert code == 0 and err == "", err
+    code, in_folder, err = identify_json(capsys, root, "scene_with_backgrounds")
+    assert code == 0, err
+    assert err == (f"note: {root / 'scene_with_backgrounds'}: each sensor's image is read against its own "
+                   "no-contact image background_<i>.png (i = 0..2)\n")
+    strip = lambda out: [{k: o[k] for k in ("name", "pose", "probability")} for o in json.loads(out)["objects"]]
+    assert strip(by_files) == strip(in_folder)
+    code, out, err = identify_json(capsys, root, "scene", "--background", *files[:2])
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err.startswith("error: 2 background images for 3 sensors")
