@@ -17,6 +17,7 @@ import numpy as np
 from tactile6d.errors import InputError
 from tactile6d.geometry import is_rotation
 from tactile6d.io import TACTILE_IMAGE_SHAPE
+from tactile6d.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap
 
 
 def check_sensor_poses(T_world_sensors) -> np.ndarray:
@@ -176,19 +177,15 @@ class UnderdeterminedPoseWarning(UserWarning):
 
 
 def check_bodies_apart(T_world_sensors: np.ndarray, margin: float = BODY_OVERLAP_MARGIN) -> None:
-    """InputError naming the first two sensors (L, 4, 4) whose DIGIT bodies (``sensor.BOX_CENTER``,
-    ``sensor.BOX_HALF_EXTENTS``, each shrunk by ``margin``) overlap: two units cannot be in one place."""
-    from tactile6d.scenes import boxes_overlap
-    from tactile6d.sensor import BOX_CENTER, BOX_HALF_EXTENTS
-
+    """InputError naming the first two sensors (L, 4, 4) whose DIGIT bodies (``sensor.bodies_overlap``, each
+    shrunk by ``margin``) overlap: two units cannot be in one place."""
     T = np.asarray(T_world_sensors, dtype=np.float64)
     centres = T[:, :3, 3] + T[:, :3, :3] @ BOX_CENTER
     # Boxes whose bounding spheres are apart need no 15-axis test.
     reach = 2.0 * float(np.linalg.norm(BOX_HALF_EXTENTS))
     for j in range(len(T)):
         for i in range(j):
-            if np.linalg.norm(centres[j] - centres[i]) < reach and boxes_overlap(
-                    T[i], T[j], half=BOX_HALF_EXTENTS - margin):
+            if np.linalg.norm(centres[j] - centres[i]) < reach and bodies_overlap(T[i], T[j], margin):
                 raise InputError(f"sensors {i} and {j} overlap: their DIGIT bodies intersect, so their poses "
                                  "cannot both be right (check the sensor order and the hand's calibration)")
 

@@ -76,3 +76,23 @@ def contact_points(T_frame_sensor: np.ndarray) -> np.ndarray:
 def contact_normals(T_frame_sensor: np.ndarray) -> np.ndarray:
     """(..., 4, 4) -> (..., 3): the outward surface normal a touching sensor implies (its -x axis)."""
     return -np.asarray(T_frame_sensor, dtype=np.float64)[..., :3, 0]
+
+
+def bodies_overlap(T_a: np.ndarray, T_b: np.ndarray, margin: float = 0.0) -> bool:
+    """Whether the DIGIT bodies (the box ``BOX_CENTER``, ``BOX_HALF_EXTENTS``) of sensors at T_a and T_b
+    (4, 4), each shrunk by ``margin`` (m) on every side, intersect.
+
+    Separating-axis test: two convex boxes are apart exactly when their projections on one of 15 axes
+    are: the 3 face normals of each box and the 9 cross products of an edge of one with an edge of the
+    other (parallel edges give no axis; the face normals cover that case).
+    """
+    R_a, R_b = np.asarray(T_a, dtype=np.float64)[:3, :3], np.asarray(T_b, dtype=np.float64)[:3, :3]
+    offset = (np.asarray(T_b, dtype=np.float64)[:3, 3] + R_b @ BOX_CENTER) - (
+        np.asarray(T_a, dtype=np.float64)[:3, 3] + R_a @ BOX_CENTER)
+    half = BOX_HALF_EXTENTS - margin
+    edges = np.cross(R_a.T[:, None, :], R_b.T[None, :, :]).reshape(9, 3)
+    lengths = np.linalg.norm(edges, axis=1)
+    keep = lengths > 1e-9
+    axes = np.concatenate([R_a.T, R_b.T, edges[keep] / lengths[keep, None]])
+    reach = np.abs(axes @ R_a) @ half + np.abs(axes @ R_b) @ half
+    return bool(np.all(np.abs(axes @ offset) <= reach))
