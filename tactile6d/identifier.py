@@ -153,7 +153,8 @@ class Identifier:
     """Identification over a library of objects (module docstring).
 
     estimators: name -> that object's ``Estimator`` with the full settings, all with the same settings,
-    the same no-contact image and (method 'ours') encoders that encode alike
+    the same no-contact image(s) (one for all sensors or one per sensor) and (method 'ours') encoders that
+    encode alike
     (``LatentAngleEncoder.encodes_like``; ``from_artifacts``'s do); weights (F,): the calibrated feature
     weights (None: only ``candidates`` can be called, which is how they are calibrated); screen: the
     ``identify.screen`` section; refine_best: as ``identify.refine_best``.
@@ -202,7 +203,9 @@ class Identifier:
         are named together in one error. The library is ``objects`` (artifacts in artifacts_dir), then
         ``distractors`` (artifacts in ``layout.distractors_dir(artifacts_dir)``, see ``identify.distractors``).
         cfg: the composed config (default: conf/); weights: cfg's ``identify.weights``, else the
-        calibrate_identify stage's (``calibrated=False``: none, for calibrating)."""
+        calibrate_identify stage's (``calibrated=False``: none, for calibrating). background: the sensors'
+        no-contact image (320, 240, 3) uint8 RGB, or (L, 320, 240, 3) one per sensor in sensor order, as
+        ``Estimator.from_artifacts`` takes it (default: ``render.background``)."""
         cfg = cfg if cfg is not None else compose_config()
         both = set(objects) & set(distractors)
         if both:
