@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 import sys
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 
 
 class Tactile6dError(Exception):
@@ -40,10 +44,66 @@ class NoMatch(Tactile6dError):
     """
 
 
-def exit_on_error(main: Callable[[], int | None]) -> int:
-    """Run ``main``; turn a Tactile6dError into ``error: <message>`` on stderr and exit status 2."""
+class Interrupted(KeyboardInterrupt):
+    """A stage stopped by a signal (SIGTERM): raised where the stage is, so that it unwinds as on Ctrl-C
+    (temporary files removed, worker processes ended). ``signum``: the signal's number."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+    def __str__(self) -> str:
+        return signal.Signals(self.signum).name
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """SIGTERM raises ``Interrupted`` meanwhile (Python's default would end the process on the spot,
+    skipping every ``finally``, and leave the worker processes running). Only in the main thread, the
+    only one that may set a signal handler."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_interrupted)
     try:
-        return int(main() or 0)
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _program_name() -> str:
+    """What was interrupted, for its one line: the DVC stage (``$DVC_STAGE``), else the module run with
+    ``python -m``, else the script."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    return os.environ.get("DVC_STAGE") or (spec.name if spec is not None else os.path.basename(sys.argv[0]))
+
+
+def exit_on_error(main: Callable[[], int | None]) -> int:
+    """Run ``main``; turn a Tactile6dError into ``error: <message>`` on stderr and exit status 2, and an
+    interrupt (Ctrl-C, SIGTERM) into one line on stderr and status 128 + the signal (130, 143).
+
+    Under ``exit_on_error`` SIGTERM unwinds like Ctrl-C (``Interrupted``); what is unwound on the way
+    (``finally``, ``with``) removes temporary files and ends worker processes, and any worker left is
+    ended here, so that the process exits within about a second (docs/distributed.md, "Ctrl-C").
+    """
+    try:
+        with _sigterm_raises():
+            return int(main() or 0)
     except Tactile6dError as exc:
         print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        from tactile6d.executor import end_worker_processes  # here: tactile6d.executor imports this module
+
+        # Those of a closed executor or renderer are gone already (executor.shutdown_pool); not those of
+        # a pool nobody closed, which the interpreter would wait for at exit.
+        end_worker_processes()
+        print(f"interrupted: {_program_name()} stopped by {signal.Signals(signum).name} before it finished; "
+              "run it again", file=sys.stderr)
+        return 128 + signum

@@ -22,16 +22,26 @@ Heavy per-process state (a loaded renderer, a library of estimators) is loaded o
 ``process_cache(key, factory)``, which works the same in this process, in spawn workers and in Dask
 workers. Tasks of one process never run concurrently (a Dask worker started with several threads
 still runs one task at a time): the renderer and the estimator are not thread-safe.
+
+Ctrl-C (SIGINT to the terminal's process group) ends the local worker processes at once, task or no
+task (``worker_context``), and a local executor closed while an interrupt unwinds ends its workers
+instead of waiting for their tasks (``shutdown_pool``): docs/distributed.md, "Ctrl-C".
 """
 
 from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
 import hashlib
 import multiprocessing
+import multiprocessing.connection
+import multiprocessing.context
 import pickle
+import signal
+import sys
 import threading
+import weakref
 from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping
 from typing import Any, TypeVar
 
@@ -95,6 +105,105 @@ def _run_task(init: tuple[str, Callable, tuple] | None, fn: Callable, args: tupl
         return fn(*args)
 
 
+# --- worker processes that Ctrl-C stops --------------------------------------------------------------------
+
+# How long terminated workers get to exit before they are killed (SIGKILL): they hold nothing to save.
+_TERMINATE_GRACE_S = 2.0
+_WORKERS: weakref.WeakSet = weakref.WeakSet()  # the worker processes this process started (end_worker_processes)
+
+
+@contextlib.contextmanager
+def _sigint_blocked():
+    """SIGINT held back in this thread meanwhile (delivered when it ends); a process started meanwhile
+    inherits the blocked signal."""
+    if not hasattr(signal, "pthread_sigmask"):  # not POSIX: nothing to hold back
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+class _WorkerProcess(multiprocessing.context.SpawnProcess):
+    """A spawn worker process that SIGINT ends at once, like any program a terminal's Ctrl-C reaches.
+
+    A worker of ``concurrent.futures`` with Python's own SIGINT handler turns the group's Ctrl-C into a
+    KeyboardInterrupt inside its task, sends it back as the task's error and takes the next queued task,
+    which the parent's shutdown then waits for (issue 33: the ablation lingered 18 s and more). It is
+    started with SIGINT blocked, so that a Ctrl-C during its start-up (imports of torch, JAX: seconds)
+    waits instead of printing a traceback; ``run`` restores the default action and unblocks it, which
+    ends the process there if a Ctrl-C came meanwhile.
+    """
+
+    def start(self):
+        with _sigint_blocked():
+            super().start()
+        _WORKERS.add(self)
+
+    def run(self):
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if hasattr(signal, "pthread_sigmask"):
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        super().run()
+
+
+class _WorkerContext(multiprocessing.context.SpawnContext):
+    Process = _WorkerProcess
+
+
+def worker_context() -> multiprocessing.context.BaseContext:
+    """The multiprocessing context of the project's worker pools (``mp_context`` of a
+    ``ProcessPoolExecutor``): spawn, with worker processes that Ctrl-C ends at once (``_WorkerProcess``)."""
+    return _WorkerContext()
+
+
+def _interrupted() -> bool:
+    """Whether a Ctrl-C or SIGTERM is unwinding (``tactile6d.errors.Interrupted`` is a KeyboardInterrupt)."""
+    return isinstance(sys.exc_info()[1], KeyboardInterrupt)
+
+
+def terminate_workers(processes: Iterable[multiprocessing.process.BaseProcess],
+                      grace_s: float = _TERMINATE_GRACE_S) -> None:
+    """End these processes now: SIGTERM, then SIGKILL for any still there after ``grace_s`` seconds.
+    Their sentinels tell when they are gone, whichever thread reaps them."""
+    processes = [p for p in processes if p.exitcode is None]
+    if not processes:
+        return
+    for p in processes:
+        with contextlib.suppress(OSError, ValueError):
+            p.terminate()
+    left = [p.sentinel for p in processes]
+    with contextlib.suppress(OSError, ValueError):
+        gone = multiprocessing.connection.wait(left, grace_s)
+        for p in processes:
+            if p.sentinel not in gone:
+                p.kill()
+
+
+def end_worker_processes() -> None:
+    """End every worker process of this process's pools that still runs (a pool nobody closed while an
+    interrupt unwound): the interpreter would wait for them at exit. Only the pools' workers, not other
+    child processes (a Dask ``LocalCluster`` of the caller's)."""
+    terminate_workers(list(_WORKERS))
+
+
+def shutdown_pool(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """Shut a process pool down, its queued tasks cancelled: after the running ones finish, or, while a
+    Ctrl-C or SIGTERM is unwinding (called from a ``finally`` or an ``__exit__``), at once, its workers
+    terminated: nobody will read what they are computing, and the process could not exit before them
+    (``concurrent.futures`` joins its workers at interpreter exit)."""
+    if not _interrupted():
+        pool.shutdown(cancel_futures=True)
+        return
+    # ``_processes`` (pid -> process) is private, but the only way to reach the workers before Python
+    # 3.14's ``terminate_workers``; shutdown() drops it, so it is read first.
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    terminate_workers(processes)
+
+
 # --- executors ---------------------------------------------------------------------------------------------
 
 
@@ -142,7 +251,8 @@ class LocalExecutor(Executor):
 
     initializer(*initargs): run once in each worker process before its first task; with 1 worker, once
     in this process before the first task. The pool starts with the first tasks given to more than one
-    worker and is reused by later ones.
+    worker and is reused by later ones. Its workers die on Ctrl-C (``worker_context``); closed while an
+    interrupt unwinds, it terminates them rather than wait for their tasks (``shutdown_pool``).
     """
 
     def __init__(self, workers: int, initializer: Callable | None = None, initargs: tuple = ()):
@@ -167,7 +277,7 @@ class LocalExecutor(Executor):
             return
         if self._pool is None:
             self._pool = concurrent.futures.ProcessPoolExecutor(
-                self.workers, mp_context=multiprocessing.get_context("spawn"),
+                self.workers, mp_context=worker_context(),
                 initializer=self.initializer, initargs=self.initargs)
         futures = [self._pool.submit(fn, *args) for args in tasks]
         index = {future: i for i, future in enumerate(futures)}
@@ -186,8 +296,8 @@ class LocalExecutor(Executor):
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
-            self._pool = None
+            pool, self._pool = self._pool, None
+            shutdown_pool(pool)
 
 
 class DaskExecutor(Executor):

@@ -672,20 +672,26 @@ class DigitRenderer:
 
     def _worker_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         if self._pool is None:
-            # spawn, not fork: the parent may hold threads (torch, jax) that fork would copy mid-state.
+            from tactile6d.executor import worker_context
+
+            # spawn, not fork: the parent may hold threads (torch, jax) that fork would copy mid-state;
+            # workers that Ctrl-C ends at once, mid-task (tactile6d.executor.worker_context).
             self._pool = concurrent.futures.ProcessPoolExecutor(
                 max_workers=self.workers,
-                mp_context=multiprocessing.get_context("spawn"),
+                mp_context=worker_context(),
                 initializer=_worker_init,
                 initargs=(self.background_bgr, dict(self.settings)),
             )
         return self._pool
 
     def close(self) -> None:
-        """End the worker processes of ``render_many``, if any."""
+        """End the worker processes of ``render_many``, if any: once their running tasks finish, or at
+        once while a Ctrl-C or SIGTERM unwinds (``tactile6d.executor.shutdown_pool``)."""
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
-            self._pool = None
+            from tactile6d.executor import shutdown_pool
+
+            pool, self._pool = self._pool, None
+            shutdown_pool(pool)
 
     def __enter__(self) -> DigitRenderer:
         return self
