@@ -56,6 +56,18 @@ class Interrupted(KeyboardInterrupt):
         return signal.Signals(self.signum).name
 
 
+# What ``exit_on_error`` runs when an interrupt ends a stage, registered by the modules that start
+# something the interpreter would otherwise wait for (tactile6d.executor: its pools' workers). A list
+# here rather than an import there: tactile6d.errors is the bottom layer and imports no other module.
+_ON_INTERRUPT: list[Callable[[], None]] = []
+
+
+def on_interrupt(cleanup: Callable[[], None]) -> None:
+    """Have ``exit_on_error`` call ``cleanup()`` when an interrupt (Ctrl-C, SIGTERM) ends the program."""
+    if cleanup not in _ON_INTERRUPT:
+        _ON_INTERRUPT.append(cleanup)
+
+
 def _raise_interrupted(signum, frame):
     raise Interrupted(signum)
 
@@ -99,11 +111,10 @@ def exit_on_error(main: Callable[[], int | None]) -> int:
         return 2
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
-        from tactile6d.executor import end_worker_processes  # here: tactile6d.executor imports this module
-
-        # Those of a closed executor or renderer are gone already (executor.shutdown_pool); not those of
-        # a pool nobody closed, which the interpreter would wait for at exit.
-        end_worker_processes()
+        # e.g. the worker processes of a pool nobody closed, which the interpreter would wait for at exit
+        # (those of a closed executor or renderer are gone already: executor.shutdown_pool).
+        for cleanup in _ON_INTERRUPT:
+            cleanup()
         print(f"interrupted: {_program_name()} stopped by {signal.Signals(signum).name} before it finished; "
               "run it again", file=sys.stderr)
         return 128 + signum

@@ -47,7 +47,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from tactile6d.errors import ConfigError
+from tactile6d.errors import ConfigError, on_interrupt
 
 T = TypeVar("T")
 
@@ -187,6 +187,9 @@ def end_worker_processes() -> None:
     interrupt unwound): the interpreter would wait for them at exit. Only the pools' workers, not other
     child processes (a Dask ``LocalCluster`` of the caller's)."""
     terminate_workers(list(_WORKERS))
+
+
+on_interrupt(end_worker_processes)
 
 
 def shutdown_pool(pool: concurrent.futures.ProcessPoolExecutor) -> None:

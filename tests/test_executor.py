@@ -17,7 +17,7 @@ from tactile6d.config import compose_config
 from tactile6d.errors import ConfigError, InputError
 from tactile6d.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.io import read_artifact, write_artifact
-from tactile6d.sensor import contact_normals, contact_points, sensor_poses_touching
+from tactile6d.sensor import bodies_overlap, contact_normals, contact_points, sensor_poses_touching
 
 # --- tasks (module level: the workers import this module to run them) ----------------------------------
 
@@ -219,6 +219,20 @@ def test_render_database_through_dask_writes_the_same_file(dask_cluster, data_di
     assert read_artifact(files["this-process"], "database").config["render"]["workers"] == 1
 
 
+def apart_sensor_poses(surface, start: int, n: int = 3) -> np.ndarray:
+    """(n, 4, 4) sensors touching surface points from index ``start`` on, every 7th, skipping any whose
+    DIGIT body would overlap one already placed (the estimator refuses overlapping sensors)."""
+    chosen = []
+    for i in range(start, start + 7 * len(surface["points"]), 7):
+        i %= len(surface["points"])
+        T = sensor_poses_touching(surface["points"][[i]], surface["normals"][[i]], 0.0, 0.002)[0]
+        if not any(bodies_overlap(T, other) for other in chosen):
+            chosen.append(T)
+        if len(chosen) == n:
+            return np.stack(chosen)
+    raise AssertionError("no room for the sensors")
+
+
 @pytest.fixture(scope="module")
 def tiny_scenes(tmp_path_factory, data_dir):
     """prim_box's artifacts with a tiny untrained autoencoder and a set of 3 three-sensor scenes."""
@@ -231,15 +245,15 @@ def tiny_scenes(tmp_path_factory, data_dir):
     write_tiny_autoencoder(root, 300, "prim_box")
     surface = read_artifact(layout.surface_file(root, "prim_box"), "surface")
     poses, sensors = [], []
-    for k, picks in enumerate(([0, 100, 200], [10, 150, 290], [40, 80, 250])):
+    for k, start in enumerate((0, 10, 40)):
         T_true = make_pose(rotvec_to_rotmat([0.2, 0.5 * k, -0.4]), [0.1, 0.0, 0.2 + 0.1 * k])
         poses.append(T_true)
-        sensors.append(T_true @ sensor_poses_touching(surface["points"][picks], surface["normals"][picks], 0.0, 0.002))
+        sensors.append(T_true @ apart_sensor_poses(surface, start))
     sensors = np.stack(sensors)
     write_artifact(layout.scenes_file(root, "tiny"), "scenes", {
         "names": np.array([f"prim_box/scene_{k}" for k in range(3)]), "objects": np.array(["prim_box"] * 3),
         "T_world_object": np.stack(poses), "T_world_sensors": sensors,
-        "images": np.full((3, 3, 320, 240, 3), 120, np.uint8), "contact_points": contact_points(sensors),
+        "images": np.full((3, 3, 320, 240, 3), (97, 105, 100), np.uint8), "contact_points": contact_points(sensors),
         "contact_normals": contact_normals(sensors), "contact_types": np.zeros((3, 3), int)})
     return root
 
