@@ -18,7 +18,7 @@ from tactile6d.errors import ArtifactError, ConfigError, InputError
 from tactile6d.inputs import UnderdeterminedPoseWarning
 from tactile6d.io import read_scene_dir, write_artifact
 from tactile6d.meshes import pack_pieces
-from tactile6d.sensor import sensor_poses_touching
+from tactile6d.sensor import bodies_overlap, sensor_poses_touching
 from tactile6d.settings import Settings
 from tactile6d.steps.encode import load_background
 from tactile6d.surface import sample_surface_even
@@ -228,6 +228,20 @@ def write_object_artifacts(artifacts: Path, name: str, mesh: trimesh.Trimesh, po
                     **pack_pieces([(np.asarray(mesh.vertices), np.asarray(mesh.faces))])})
     write_artifact(layout.surface_file(artifacts, name), "surface",
                    {"points": points, "normals": normals, "face_index": np.zeros(len(points), int)})
+
+
+def apart_sensor_poses(surface, start: int, n: int = 3) -> np.ndarray:
+    """(n, 4, 4) sensors touching surface points from index ``start`` on, every 7th, skipping any whose
+    DIGIT body would overlap one already placed (the estimator refuses overlapping sensors)."""
+    chosen = []
+    for i in range(start, start + 7 * len(surface["points"]), 7):
+        i %= len(surface["points"])
+        T = sensor_poses_touching(surface["points"][[i]], surface["normals"][[i]], 0.0, 0.002)[0]
+        if not any(bodies_overlap(T, other) for other in chosen):
+            chosen.append(T)
+        if len(chosen) == n:
+            return np.stack(chosen)
+    raise AssertionError("no room for the sensors")
 
 
 def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):

@@ -17,7 +17,7 @@ from tactile6d.config import compose_config
 from tactile6d.errors import ConfigError, InputError
 from tactile6d.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.io import read_artifact, write_artifact
-from tactile6d.sensor import bodies_overlap, contact_normals, contact_points, sensor_poses_touching
+from tactile6d.sensor import contact_normals, contact_points
 
 # --- tasks (module level: the workers import this module to run them) ----------------------------------
 
@@ -219,24 +219,10 @@ def test_render_database_through_dask_writes_the_same_file(dask_cluster, data_di
     assert read_artifact(files["this-process"], "database").config["render"]["workers"] == 1
 
 
-def apart_sensor_poses(surface, start: int, n: int = 3) -> np.ndarray:
-    """(n, 4, 4) sensors touching surface points from index ``start`` on, every 7th, skipping any whose
-    DIGIT body would overlap one already placed (the estimator refuses overlapping sensors)."""
-    chosen = []
-    for i in range(start, start + 7 * len(surface["points"]), 7):
-        i %= len(surface["points"])
-        T = sensor_poses_touching(surface["points"][[i]], surface["normals"][[i]], 0.0, 0.002)[0]
-        if not any(bodies_overlap(T, other) for other in chosen):
-            chosen.append(T)
-        if len(chosen) == n:
-            return np.stack(chosen)
-    raise AssertionError("no room for the sensors")
-
-
 @pytest.fixture(scope="module")
 def tiny_scenes(tmp_path_factory, data_dir):
     """prim_box's artifacts with a tiny untrained autoencoder and a set of 3 three-sensor scenes."""
-    from test_estimator import write_tiny_autoencoder
+    from test_estimator import apart_sensor_poses, write_tiny_autoencoder
 
     root = tmp_path_factory.mktemp("artifacts")
     common = ["--object", "prim_box", f"paths.artifacts_dir={root}"]

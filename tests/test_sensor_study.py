@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
-from test_estimator import write_tiny_autoencoder
+from test_estimator import apart_sensor_poses, write_tiny_autoencoder
 
 from stages import ablation, prepare_object, sample_surface, sensor_study
 from tactile6d import layout
@@ -13,7 +13,7 @@ from tactile6d.config import compose_config
 from tactile6d.errors import ConfigError
 from tactile6d.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.io import read_artifact, write_artifact
-from tactile6d.sensor import contact_normals, contact_points, sensor_poses_touching
+from tactile6d.sensor import contact_normals, contact_points
 from tactile6d.sensor_subsets import sensor_subsets
 
 
@@ -25,12 +25,11 @@ def artifacts(tmp_path_factory, data_dir):
     assert sample_surface.main(common + ["sample.M=300"]) == 0
     write_tiny_autoencoder(root, 300, "prim_box")
     surface = read_artifact(layout.surface_file(root, "prim_box"), "surface")
-    picks = [0, 100, 200]
     T_true = make_pose(rotvec_to_rotmat([0.2, 0.5, -0.4]), [0.1, 0.0, 0.2])
-    sensors = T_true @ sensor_poses_touching(surface["points"][picks], surface["normals"][picks], 0.0, 0.002)
+    sensors = T_true @ apart_sensor_poses(surface, 0)
     write_artifact(layout.scenes_file(root, "tiny"), "scenes", {
         "names": np.array(["prim_box/scene_0"]), "objects": np.array(["prim_box"]), "T_world_object": T_true[None],
-        "T_world_sensors": sensors[None], "images": np.full((1, 3, 320, 240, 3), 120, np.uint8),
+        "T_world_sensors": sensors[None], "images": np.full((1, 3, 320, 240, 3), (97, 105, 100), np.uint8),
         "contact_points": contact_points(sensors)[None], "contact_normals": contact_normals(sensors)[None],
         "contact_types": np.zeros((1, 3), int)})
     return root
