@@ -328,7 +328,7 @@ def test_a_worker_reloads_the_library_for_a_new_identifier(prim_artifacts, monke
     from tactile6d import executor
     from tactile6d.identifier import LibrarySource, screen_task
 
-    cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]"])
+    cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", "identify.workers=1"])
     loads = []
     original = LibrarySource.load
     monkeypatch.setattr(LibrarySource, "load", lambda self: loads.append(self.token) or original(self))
@@ -417,7 +417,7 @@ def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifa
     write_tiny_scenes(prim_artifacts, "tiny")
     assert identify_stage.main(["--scene-set", "tiny", f"paths.artifacts_dir={prim_artifacts}",
                                 "objects.names=[prim_box,prim_cylinder]", "identify.distractors=[shape_3]",
-                                "select.method=baseline", "identify.weights=[1,1,1]"]) == 0
+                                "select.method=baseline", "identify.weights=[1,1,1]", "identify.workers=1"]) == 0
     metrics = json.loads(layout.metrics_file(prim_artifacts, "identify_tiny").read_text())
     assert metrics["n_scenes"] == 2 and metrics["objects"] == ["prim_box", "prim_cylinder", "shape_3"]
     assert metrics["confusion"] == [[1, 0, 0], [0, 1, 0], [0, 0, 0]]
@@ -438,7 +438,8 @@ def test_the_calibration_stage_fits_weights_on_the_calibration_scenes(prim_artif
     shutil.copytree(prim_artifacts, artifacts)
     write_tiny_scenes(artifacts, "calibration")
     assert calibrate_identify.main([f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box,prim_cylinder]",
-                                    "identify.distractors=[shape_3]", "select.method=baseline"]) == 0
+                                    "identify.distractors=[shape_3]", "select.method=baseline",
+                                    "identify.workers=1"]) == 0
     out = json.loads(layout.identify_calibration_file(artifacts).read_text())
     assert out["objects"] == ["prim_box", "prim_cylinder", "shape_3"] and out["n_scenes"] == 2
     assert out["scene_set"] == "calibration"
@@ -484,7 +485,7 @@ def units_library(prim_artifacts, tmp_path_factory):
 def identify_json(capsys, root, scene, *options):
     code = cli_main(["identify", "--scene", str(root / scene), "--objects", "prim_box", "prim_cylinder",
                      "--artifacts", str(root / "artifacts"), "--json", *options, "identify.weights=[1,1,1]",
-                     "select.N=200", "identify.screen.N=200"])
+                     "select.N=200", "identify.screen.N=200", "identify.workers=1"])
     out, err = capsys.readouterr()
     return code, out, err
 
