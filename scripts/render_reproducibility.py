@@ -15,6 +15,7 @@ ISA is chosen through a small LD_PRELOAD shim (compiled here with the system C c
     python scripts/render_reproducibility.py                 # all settings, a table of differences
     python scripts/render_reproducibility.py --settings default embree-sse2 --keep /tmp/out
     python scripts/render_reproducibility.py render OUT.npz  # one render in this process (what each child runs)
+    eval "$(python scripts/render_reproducibility.py env avx2)"  # this shell on Embree's AVX2 intersector
 
 The data directory is $TACTILE6D_DATA (or ../shared/data beside the repository).
 """
@@ -36,7 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from tactile6d.instruction_sets import pinned_environment  # noqa: E402 (imports nothing heavy)
+from tactile6d.instruction_sets import PINNED_VARIABLES, pinned_environment  # noqa: E402 (imports nothing heavy)
 
 # The database images: two YCB objects prepared as prepare_object does, and a superquadric like the
 # training set's. Per mesh, this many evenly spread surface points (sample_surface's sampler), each with
@@ -276,8 +277,9 @@ def digest(array: np.ndarray) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("mode", nargs="?", default="compare", choices=("compare", "render"))
-    parser.add_argument("out", nargs="?", help="render mode: the .npz to write")
+    parser.add_argument("mode", nargs="?", default="compare", choices=("compare", "render", "env"))
+    parser.add_argument("out", nargs="?", help="render mode: the .npz to write; env mode: Embree's ISA (sse2, "
+                                               "sse4.2, avx, avx2, avx512)")
     parser.add_argument("--settings", nargs="*", default=list(SETTINGS), choices=list(SETTINGS))
     parser.add_argument("--contacts", type=int, default=CONTACTS_PER_MESH, help="contacts per mesh")
     parser.add_argument("--objects", nargs="*", default=list(YCB_OBJECTS))
@@ -288,6 +290,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--keep", help="compare mode: keep each setting's .npz in this directory")
     args = parser.parse_args(argv)
     superquadric = None if args.no_superquadric else SUPERQUADRIC
+
+    if args.mode == "env":
+        # Shell exports that put any program (a pipeline stage, scripts/verify_lock.py) on Embree's
+        # intersector ``out`` and every other library's AVX2 path: another machine's code paths, here.
+        if args.out not in EMBREE_ISAS:
+            parser.error(f"env mode takes one of {list(EMBREE_ISAS)}")
+        folder = Path(tempfile.mkdtemp(prefix="embree_shim_"))
+        shim = build_shim(folder)
+        if shim is None:
+            parser.error("no C compiler for the Embree config shim")
+        env = pinned_environment(os.environ)
+        env.update(EMBREE_CONFIG=f"isa={args.out}", LD_PRELOAD=str(shim), EMBREE_LIBRARY=str(embree_library()))
+        for key in ("LD_PRELOAD", "EMBREE_LIBRARY", "EMBREE_CONFIG", *PINNED_VARIABLES):
+            print(f"export {key}='{env[key]}'")
+        return 0
 
     if args.mode == "render":
         switches = json.loads(args.switches)
