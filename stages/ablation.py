@@ -78,9 +78,10 @@ def variants_on(scene_set: str, names: list[str], only_on: dict) -> list[str]:
     return [name for name in names if name not in only_on or scene_set in only_on[name]]
 
 
-def sensor_counts(names: list[str], n_sensors: int, curves: list[str]) -> dict[str, tuple[int, ...]]:
-    """variant -> the sensor counts it is estimated at: every count 1..L for ``curves``, else L alone."""
-    unknown = sorted(set(curves) - set(names))
+def sensor_counts(names: list[str], n_sensors: int, curves: list[str], variants: list[str]) -> dict[str, tuple[int, ...]]:
+    """The variants ``names`` (of all ``variants``) -> the sensor counts each is estimated at: every count
+    1..L for ``curves``, else L alone."""
+    unknown = sorted(set(curves) - set(variants))
     if unknown:
         raise ConfigError(f"ablation.curves names variants that ablation.variants does not have: {unknown}")
     every = tuple(range(1, n_sensors + 1))
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in scenes["objects"]]
     n_sensors = scenes["T_world_sensors"].shape[1] if objects else 0
-    counts_of = sensor_counts(names, n_sensors, list(cfg.ablation.curves or []))
+    counts_of = sensor_counts(names, n_sensors, list(cfg.ablation.curves or []), list(cfg.ablation.variants))
     counts = {first: () for first in unique}  # a variant estimated once for several names: every count they ask for
     for name, variant_cfg in variants.items():
         first = first_with[estimator_settings_key(variant_cfg)]

@@ -92,10 +92,13 @@ def test_ablation_reports_each_variant_at_its_sensor_counts_and_sets(artifacts, 
 
 def test_ablation_names_of_curves_and_sets_must_be_variants():
     with pytest.raises(ConfigError, match=r"ablation.curves .*\['nope'\]"):
-        ablation.sensor_counts(["paper", "default"], 3, ["nope"])
+        ablation.sensor_counts(["paper", "default"], 3, ["nope"], ["paper", "default"])
     with pytest.raises(ConfigError, match=r"ablation.only_on .*\['nope'\]"):
         ablation.variants_on("tiny", ["paper"], {"nope": ["tiny"]})
     assert ablation.variants_on("offaxis", ["paper", "default"], {"paper": ["caddeo2023"]}) == ["default"]
-    assert ablation.sensor_counts(["paper", "default"], 3, ["paper"]) == {"paper": (1, 2, 3), "default": (3,)}
+    assert ablation.sensor_counts(["paper", "default"], 3, ["paper"], ["paper", "default"]) == {"paper": (1, 2, 3),
+                                                                                               "default": (3,)}
+    # a curve whose variant does not run on this set (ablation.only_on) is no error there
+    assert ablation.sensor_counts(["default"], 3, ["paper"], ["paper", "default"]) == {"default": (3,)}
 
 
