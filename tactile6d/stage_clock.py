@@ -76,7 +76,10 @@ def record(name: str, seconds: float, finished: datetime.datetime | None = None)
 
 
 def write_record(path: str | os.PathLike, rec: dict) -> Path:
-    """Write a time record as JSON atomically (temporary file beside it, then rename); returns the path."""
+    """Write a time record as JSON atomically (temporary file beside it, then rename); returns the path.
+
+    ``io.write_text`` does the same, but importing tactile6d.io (NumPy, h5py) would add its code to every
+    stage's deps: this module stays standalone."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
