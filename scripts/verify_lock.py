@@ -370,6 +370,26 @@ def diff_json_values(old, new, prefix: str = "") -> list[tuple[str, str]]:
     return [] if same else [(prefix or "(top level)", _number_diff(old, new))]
 
 
+def diff_torch(old: Path, new: Path) -> list[tuple[str, str]]:
+    """Named differences of two PyTorch checkpoints (a dict of tensors, numbers, strings...): each tensor
+    compared bit for bit, the rest as JSON values. The file's bytes differ between two saves of the same
+    weights whenever anything else in it does (the training's seconds in the autoencoder's history)."""
+    import torch
+
+    def plain(value):
+        if isinstance(value, torch.Tensor):
+            return {"tensor": hashlib.sha256(value.detach().cpu().contiguous().numpy().tobytes()).hexdigest(),
+                    "shape": list(value.shape), "dtype": str(value.dtype)}
+        if isinstance(value, dict):
+            return {str(k): plain(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [plain(v) for v in value]
+        return value
+
+    return diff_json_values(plain(torch.load(old, map_location="cpu", weights_only=False)),
+                            plain(torch.load(new, map_location="cpu", weights_only=False)))
+
+
 def _strip_index(path: str) -> str:
     return re.sub(r"\[\d+\]", "", path)
 
@@ -486,7 +506,9 @@ def content_diff(old: Path, new: Path) -> list[tuple[str, str]] | None:
             return diff_json(old, new)
         if suffix in (".md", ".txt", ".csv", ".yaml", ".yml"):
             return diff_text(old, new)
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        if suffix == ".pt":
+            return diff_torch(old, new)
+    except (OSError, ValueError, UnicodeDecodeError, RuntimeError) as exc:
         return [("(unreadable)", " ".join(str(exc).split()))]
     return None
 

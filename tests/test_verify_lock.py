@@ -245,3 +245,19 @@ def test_project_stage_remade_byte_for_byte(tmp_path):
         pytest.skip(f"this checkout's code differs from dvc.lock and changes the surface:\n{out}")
     assert status == 0, out
     assert "sample_distractor@prim_box: artifacts/distractors/surfaces/prim_box.h5: identical" in out
+
+
+def test_torch_checkpoints_compare_by_tensors_and_the_training_seconds_are_timings(tmp_path):
+    import torch
+
+    weights = {"w": torch.arange(6.0).reshape(2, 3)}
+    old, new, other = tmp_path / "old.pt", tmp_path / "new.pt", tmp_path / "other.pt"
+    torch.save({"state_dict": weights, "history": {"train_loss": [1.0, 0.5], "seconds": [3.1, 2.9]}}, old)
+    torch.save({"state_dict": weights, "history": {"train_loss": [1.0, 0.5], "seconds": [3.4, 2.7]}}, new)
+    torch.save({"state_dict": {"w": weights["w"] + 1e-7}, "history": {"train_loss": [1.0, 0.5], "seconds": [3.1, 2.9]}},
+               other)
+    assert {name for name, _ in verify_lock.diff_torch(old, new)} == {"history.seconds[0]", "history.seconds[1]"}
+    assert verify_lock.judge_file(old, new, "model.pt", ignore_timings=True).identical
+    assert not verify_lock.judge_file(old, new, "model.pt", ignore_timings=False).identical
+    judged = verify_lock.judge_file(old, other, "model.pt", ignore_timings=True)
+    assert not judged.identical and any(d.startswith("state_dict.w.tensor") for d in judged.details)
