@@ -11,9 +11,15 @@ All run under ``exit_on_error``, as a stage does.
 """
 
 import os
+import signal
 import sys
 import time
 from pathlib import Path
+
+# Ctrl-C raises KeyboardInterrupt, as in a program a terminal runs in the foreground. A test run that a
+# shell started in the background without job control (as CI may be) hands its children SIGINT ignored,
+# and Python keeps an inherited "ignore": then nothing here would see the interrupt under test.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parent)]

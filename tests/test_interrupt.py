@@ -201,10 +201,16 @@ def test_an_executor_interrupted_in_map_ends_its_workers_at_once(tmp_path):
 
     main = threading.main_thread().ident
     sent = []
-    threading.Thread(target=interrupt_when_both_run, daemon=True).start()
-    with pytest.raises(KeyboardInterrupt):
-        with ex.LocalExecutor(2) as executor:
-            executor.map(report_and_sleep, [tmp_path] * 4, [30.0] * 4)
+    # As in a foreground program: pytest started in the background by a shell without job control (as
+    # CI may be) inherits SIGINT ignored (tests/interrupt_child.py).
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        threading.Thread(target=interrupt_when_both_run, daemon=True).start()
+        with pytest.raises(KeyboardInterrupt):
+            with ex.LocalExecutor(2) as executor:
+                executor.map(report_and_sleep, [tmp_path] * 4, [30.0] * 4)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     stopped = time.monotonic()
     assert stopped - sent[0] < STOP_S  # not the 30 s of the running tasks
     workers = [int(p.name.split("-")[1]) for p in tmp_path.glob("pid-*")]
