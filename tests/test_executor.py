@@ -94,6 +94,7 @@ def test_completed_hands_each_result_over_as_it_is_made(fresh_process_state):
         assert list(pool.completed(record, [7, 8])) == [(0, 7), (1, 8)]
 
 
+@pytest.mark.slow  # worker processes: out of the quick subset
 def test_two_local_workers_give_the_same_results_in_order(fresh_process_state):
     n = 24
     with ex.LocalExecutor(2, initializer, ("tag",)) as pool:
@@ -160,6 +161,7 @@ def test_an_unreachable_scheduler_is_a_clear_error():
 # --- a real Dask cluster on localhost ---------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a Dask cluster's worker processes: out of the quick subset
 def test_dask_gives_the_local_results_in_order(dask_cluster, fresh_process_state):
     n = 24
     cfg = compose_config([f"executor.address={dask_cluster}"])

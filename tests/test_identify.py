@@ -136,6 +136,7 @@ def landmark_settings(**overrides):
 SCREEN = {"N": 500, "delta_d_max": 0.01, "candidates": 10}
 
 
+@pytest.mark.slow  # end-to-end identification: out of the quick subset
 @pytest.mark.parametrize("method", ["ours", "baseline"])
 def test_the_box_of_the_right_width_wins_over_wider_and_narrower_ones(squeezed, method):
     T_sensors, angles = squeezed
@@ -172,6 +173,7 @@ class FinishingInOrder(Executor):
         return "in this process, in a chosen order"
 
 
+@pytest.mark.slow  # end-to-end identification: out of the quick subset
 @pytest.mark.parametrize("order, guess_wins", [([1, 0, 2], True), ([0, 2, 1], False)])
 def test_the_guess_at_the_winner_changes_nothing(squeezed, monkeypatch, order, guess_wins):
     """A spread screen makes the full estimate of the object leading when one is left to screen. When the
