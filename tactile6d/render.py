@@ -32,7 +32,6 @@ from __future__ import annotations
 import concurrent.futures
 import inspect
 import math
-import multiprocessing
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
