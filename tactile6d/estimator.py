@@ -255,13 +255,13 @@ class Estimator:
         if self.encoder is None:
             raise InputError("this estimator has no image encoder (built for the baseline)")
         images = np.asarray(images)
-        own = None if backgrounds is None else self.backgrounds(images.shape[0], backgrounds)
+        per_sensor = self.backgrounds(images.shape[0], backgrounds)
+        own = None if backgrounds is None else per_sensor  # only a call's own go to the encoder
         if contacts is None:
             angles = self.encoder(images) if own is None else self.encoder(images, own)
             return np.asarray(angles, dtype=np.float64).reshape(images.shape[0])
         return encode_step.read_angles(self.encoder, self.settings.select, images, contacts,
-                                       check_sensor_poses(T_world_sensors),
-                                       self.backgrounds(images.shape[0], backgrounds), own)
+                                       check_sensor_poses(T_world_sensors), per_sensor, own)
 
     def contacts(self, T_world_sensors, images=None, backgrounds=None) -> Contacts:
         """The sensors' contacts (``select.contacts``): their landmarks, or each image's contact patch

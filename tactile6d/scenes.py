@@ -34,6 +34,7 @@ from tactile6d.sensor import (
     BOX_CENTER,
     BOX_HALF_EXTENTS,
     GEL_CENTER,
+    bodies_overlap,
     contact_normals,
     contact_points,
     sensor_poses_touching,
@@ -99,25 +100,6 @@ def scene_set_from_known_sensors(
 
 
 # --- validation scenes ----------------------------------------------------------------------------
-
-
-def boxes_overlap(T_a: np.ndarray, T_b: np.ndarray, center=BOX_CENTER, half=BOX_HALF_EXTENTS) -> bool:
-    """Whether two sensors' body boxes intersect (separating-axis test on two oriented boxes)."""
-    Ra, Rb = T_a[:3, :3], T_b[:3, :3]
-    ca, cb = T_a[:3, 3] + Ra @ center, T_b[:3, 3] + Rb @ center
-    axes = [Ra[:, i] for i in range(3)] + [Rb[:, i] for i in range(3)]
-    axes += [np.cross(Ra[:, i], Rb[:, j]) for i in range(3) for j in range(3)]
-    d = cb - ca
-    for axis in axes:
-        norm = np.linalg.norm(axis)
-        if norm < 1e-9:
-            continue  # parallel edges: this cross product gives no axis
-        axis = axis / norm
-        ra = np.sum(half * np.abs(Ra.T @ axis))
-        rb = np.sum(half * np.abs(Rb.T @ axis))
-        if abs(d @ axis) > ra + rb:
-            return False
-    return True
 
 
 def body_penetrates(surface: contact.SurfaceSamples, T_object_sensor: np.ndarray, margin: float = 0.0) -> bool:
@@ -236,7 +218,7 @@ def draw_validation_scene(
                                               tilt, offset)
         else:
             T = sensor_poses_touching(candidates[j], candidate_normals[j], roll, depth)
-        if body_penetrates(surface, T) or any(boxes_overlap(T, other) for other in chosen_T):
+        if body_penetrates(surface, T) or any(bodies_overlap(T, other) for other in chosen_T):
             continue
         chosen_T.append(T)
         chosen_idx.append(j)
