@@ -200,11 +200,16 @@ def shutdown_pool(pool: concurrent.futures.ProcessPoolExecutor) -> None:
     if not _interrupted():
         pool.shutdown(cancel_futures=True)
         return
-    # ``_processes`` (pid -> process) is private, but the only way to reach the workers before Python
-    # 3.14's ``terminate_workers``; shutdown() drops it, so it is read first.
+    # ``_processes`` (pid -> process) and the manager thread are private, but the only way to reach them
+    # before Python 3.14's ``terminate_workers``; shutdown() drops them, so they are read first.
     processes = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     terminate_workers(processes)
+    if manager is not None:
+        # Let it see its workers gone and close its pipes now: left running, it races the interpreter's
+        # exit hook of concurrent.futures, which then writes to a closed pipe (a traceback on stderr).
+        manager.join(_TERMINATE_GRACE_S)
 
 
 # --- executors ---------------------------------------------------------------------------------------------
