@@ -1,6 +1,6 @@
 """Re-make stages recorded in dvc.lock into a temporary directory and check their outputs byte for byte.
 
-    python scripts/verify_lock.py sample_distractor@prim_box report
+    python scripts/verify_lock.py sample_distractors report
     python scripts/verify_lock.py --ignore-timings 'render_database@*'
 
 A stage may be recorded with ``dvc commit -f STAGE`` instead of re-run only when this script has re-made

@@ -3,7 +3,8 @@
 Reads: the object's mesh (data directory, or a built-in primitive), config sections ``prepare`` and
 ``paths``. Writes ``artifacts/objects/<name>.h5`` and ``artifacts/metrics/collision/<name>.json`` (how
 well the collision pieces cover the object); with ``--distractor`` (a distractor of the identification
-library) both under ``artifacts/distractors/`` instead.
+library) both under ``artifacts/distractors/`` instead, and with ``--distractors`` so for every distractor, spread over
+``prepare.workers`` local processes (a Dask cluster's workers when ``executor.address`` names one).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from tactile6d import layout, meshes
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import ConfigError, exit_on_error
+from tactile6d.executor import executor_from_config
 from tactile6d.io import write_artifact, write_json
 from tactile6d.stage_clock import timed
 from tactile6d.surface import sample_surface_even
@@ -58,9 +60,9 @@ def collision_pieces(name: str, mesh, cfg, store: DataStore) -> meshes.ConvexPie
     raise ConfigError(f"prepare.collision must be coacd, hull or caddeo2023, not {method!r}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
-    name = args.object
+def prepare_object(name: str, cfg, artifacts) -> str:
+    """Write the object's ``objects/<name>.h5`` and collision metrics under ``artifacts``; one executor task.
+    Returns the line that describes it."""
     store = DataStore(cfg.paths)
     rng = np.random.default_rng(cfg.prepare.seed)
 
@@ -69,13 +71,6 @@ def main(argv: list[str] | None = None) -> int:
     mesh, report = meshes.clean_mesh(raw)
     pieces = collision_pieces(name, mesh, cfg, store)
     fidelity = meshes.collision_fidelity(mesh, pieces, n=200_000, rng=rng)
-    print(
-        f"{name}: {report['faces']} faces (watertight: {report['watertight']}), "
-        f"{fidelity['n_pieces']} collision pieces ({cfg.prepare.collision}): "
-        f"excess {fidelity['excess']:.3f}, missing {fidelity['missing']:.3f} of the volume"
-    )
-
-    artifacts = args.objects_dir
     write_artifact(
         layout.object_file(artifacts, name),
         "object",
@@ -89,6 +84,23 @@ def main(argv: list[str] | None = None) -> int:
         config={"prepare": section_to_dict(cfg, "prepare")},
     )
     write_json(layout.collision_metrics_file(artifacts, name), {"collision": cfg.prepare.collision, **fidelity})
+    return (f"{name}: {report['faces']} faces (watertight: {report['watertight']}), "
+            f"{fidelity['n_pieces']} collision pieces ({cfg.prepare.collision}): "
+            f"excess {fidelity['excess']:.3f}, missing {fidelity['missing']:.3f} of the volume")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
+    workers = int(cfg.prepare.workers)
+    if workers < 1:
+        raise ConfigError(f"prepare.workers must be >= 1, got {workers}")
+    names = args.names
+    # Each object is one task: coacd and the fidelity sampling run on one core.
+    with executor_from_config(cfg, max(1, min(workers, len(names)))) as executor:
+        lines = executor.map(prepare_object, names, [cfg] * len(names), [args.objects_dir] * len(names),
+                             desc="prepare_object" if len(names) > 1 else None)
+    for line in lines:
+        print(line)
     return 0
 
 

@@ -7,7 +7,8 @@ per point the sensor pose ``T_object_sensor`` (``sensor_poses_touching`` with ``
 the roll rule ``render.roll``), its image and contact mask stored compactly, and whether the object
 enters the sensor body there (``body_contact``; rendered anyway, as TACTO would: ``render.strict`` is
 not applied here); also the no-contact image. Randomness (rolls, noise) comes from the object's name
-(``database.object_rng``).
+(``database.object_rng``). With ``--distractors`` it renders every distractor of the identification
+library (under ``artifacts/distractors/``), one object after the other through one executor.
 
 The poses are rendered in chunks of ``CHUNK``, one executor task each (``tactile6d.executor``, config
 section ``executor``): ``render.workers`` local processes by default, a Dask cluster's workers when
@@ -63,41 +64,34 @@ def render_chunk(settings: dict, background_bgr: np.ndarray, mesh: MeshArrays,
     return database.render_encoded(renderer, mesh, T_object_sensors)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
+def render_object(name: str, cfg, artifacts, renderer: DigitRenderer, background: np.ndarray,
+                  executor) -> None:
+    """Write ``artifacts/databases/<name>.h5`` under ``artifacts`` from the object's mesh and surface there.
+
+    renderer: gives the settings the tasks rebuild it from and the background they encode over;
+    background: the no-contact image (H, W, 3) uint8 BGR as read; executor: where the chunks render.
+    """
     start = time.perf_counter()
-    artifacts = args.objects_dir
-    name = args.object
     surface = read_artifact(layout.surface_file(artifacts, name), "surface")
     obj = read_artifact(layout.object_file(artifacts, name), "object")
     mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
     points, normals = surface["points"], surface["normals"]
     n = len(points)
-
     rng = database.object_rng(name)
     rolls = database.sensor_rolls(cfg.render.roll, n, rng)
     depths = np.full(n, float(cfg.render.press_depth))
     noise_seeds = rng.integers(0, 2**62, size=n + 1)  # one per image, the last for the no-contact image
     poses = sensor_poses_touching(points, normals, rolls, depths)
-
-    workers = int(cfg.render.workers)
-    if workers < 1:
-        raise ConfigError(f"render.workers must be >= 1, got {workers}")
-    background = load_background_bgr(cfg, DataStore(cfg.paths))
-    # This one only gives the settings the tasks rebuild it from and the background they encode over.
-    renderer = DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False, workers=1)
     arrays = mesh_arrays(mesh)
     chunks = [poses[a : a + CHUNK] for a in range(0, n, CHUNK)]
     images = database.CompactImages(renderer.background)
-    with executor_from_config(cfg, workers) as executor:
-        print(f"{name}: {n} images in {len(chunks)} tasks on {executor.describe()}", flush=True)
-        k = len(chunks)
-        for part in executor.map(render_chunk, [renderer.settings] * k, [background] * k, [arrays] * k, chunks,
-                                 desc=f"render_database {name}"):
-            images.extend(part)
+    print(f"{name}: {n} images in {len(chunks)} tasks on {executor.describe()}", flush=True)
+    k = len(chunks)
+    for part in executor.map(render_chunk, [renderer.settings] * k, [background] * k, [arrays] * k, chunks,
+                             desc=f"render_database {name}"):
+        images.extend(part)
     body = database.body_contacts(mesh.vertices, poses)
     no_contact = add_noise(images.background, float(cfg.render.noise_std), int(noise_seeds[-1]))
-
     path = write_artifact(
         layout.database_file(artifacts, name),
         "database",
@@ -120,6 +114,19 @@ def main(argv: list[str] | None = None) -> int:
         f"({path.stat().st_size / max(n, 1) / 1024:.1f} KB per image); contact in {np.count_nonzero(pixels)} "
         f"(median {np.median(pixels):.0f} pixels); object inside the sensor body at {int(body.sum())} points"
     )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
+    workers = int(cfg.render.workers)
+    if workers < 1:
+        raise ConfigError(f"render.workers must be >= 1, got {workers}")
+    background = load_background_bgr(cfg, DataStore(cfg.paths))
+    # This one only gives the settings the tasks rebuild it from and the background they encode over.
+    renderer = DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False, workers=1)
+    with executor_from_config(cfg, workers) as executor:
+        for name in args.names:
+            render_object(name, cfg, args.objects_dir, renderer, background, executor)
     return 0
 
 

@@ -1,7 +1,8 @@
 """Stage sample_surface: M points spread evenly over an object's surface, with outward normals.
 
 Reads ``artifacts/objects/<name>.h5`` and config section ``sample``; writes
-``artifacts/surfaces/<name>.h5`` (with ``--distractor``: both under ``artifacts/distractors/``).
+``artifacts/surfaces/<name>.h5`` (with ``--distractor``, or ``--distractors`` for the whole identification
+library in one run: both under ``artifacts/distractors/``).
 """
 
 from __future__ import annotations
@@ -19,27 +20,31 @@ from tactile6d.stage_clock import timed
 from tactile6d.surface import nearest_neighbour_distances, sample_surface_even
 
 
-def main(argv: list[str] | None = None) -> int:
-    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
-    if int(cfg.sample.M) < 1 or int(cfg.sample.oversample) < 1:
-        raise ConfigError(f"sample.M and sample.oversample must be positive, got {cfg.sample.M}, {cfg.sample.oversample}")
-    artifacts = args.objects_dir
-    obj = read_artifact(layout.object_file(artifacts, args.object), "object")
+def sample_object(name: str, cfg, artifacts) -> None:
+    """Write ``artifacts/surfaces/<name>.h5`` under ``artifacts`` from the object's cleaned mesh there."""
+    obj = read_artifact(layout.object_file(artifacts, name), "object")
     mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
-
     rng = np.random.default_rng(cfg.sample.seed)
     points, normals, faces = sample_surface_even(mesh, int(cfg.sample.M), rng, int(cfg.sample.oversample))
     nn = nearest_neighbour_distances(points)
     spacing = {"nn_mean_m": float(nn.mean()), "nn_min_m": float(nn.min()), "nn_min_over_mean": float(nn.min() / nn.mean())}
-    print(f"{args.object}: {len(points)} points, nearest-neighbour distance mean {1000 * nn.mean():.2f} mm, "
+    print(f"{name}: {len(points)} points, nearest-neighbour distance mean {1000 * nn.mean():.2f} mm, "
           f"min/mean {spacing['nn_min_over_mean']:.2f}")
     write_artifact(
-        layout.surface_file(artifacts, args.object),
+        layout.surface_file(artifacts, name),
         "surface",
         {"points": points, "normals": normals, "face_index": faces},
-        attrs={"object": args.object, "spacing": spacing},
+        attrs={"object": name, "spacing": spacing},
         config={"sample": section_to_dict(cfg, "sample")},
     )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
+    if int(cfg.sample.M) < 1 or int(cfg.sample.oversample) < 1:
+        raise ConfigError(f"sample.M and sample.oversample must be positive, got {cfg.sample.M}, {cfg.sample.oversample}")
+    for name in args.names:
+        sample_object(name, cfg, args.objects_dir)
     return 0
 
 

@@ -104,29 +104,40 @@ def section_to_dict(cfg: DictConfig, key: str) -> dict:
 def parse_stage_args(argv: list[str] | None, description: str, per_object: bool = False, add_arguments=None):
     """Common command line of ``python -m stages.<name>``.
 
-    ``[--params params.yaml] [--object NAME [--distractor]] key=value ...``: without ``--params`` the
-    config is composed from ``conf/`` (so group overrides work), with it the composed file is read.
-    ``add_arguments(parser)`` may add a stage's own flags. Returns ``(args, cfg)``; a per-object stage's
-    ``args.objects_dir`` is where that object's artifacts live: ``paths.artifacts_dir``, or for a
-    distractor of the identification library ``layout.distractors_dir`` of it.
+    ``[--params params.yaml] [--object NAME [--distractor] | --distractors] key=value ...``: without
+    ``--params`` the config is composed from ``conf/`` (so group overrides work), with it the composed file
+    is read. ``add_arguments(parser)`` may add a stage's own flags. Returns ``(args, cfg)``; a per-object
+    stage's ``args.names`` are the objects it makes (``--object``'s one, or with ``--distractors`` every
+    distractor of the identification library, ``identify.distractors``, in one run) and
+    ``args.objects_dir`` is where their artifacts live: ``paths.artifacts_dir``, or for distractors
+    ``layout.distractors_dir`` of it.
     """
     import argparse
 
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--params", help="composed params file (DVC passes params.yaml); default: compose conf/")
     if per_object:
-        parser.add_argument("--object", required=True, help="object name (see conf/objects/)")
+        which = parser.add_mutually_exclusive_group(required=True)
+        which.add_argument("--object", help="object name (see conf/objects/)")
+        which.add_argument("--distractors", action="store_true",
+                           help="every distractor of the identification library (identify.distractors), "
+                                "in one run; their artifacts live under <artifacts>/distractors/")
         parser.add_argument("--distractor", action="store_true",
-                            help="a distractor of the identification library (identify.distractors): its "
-                                 "artifacts live under <artifacts>/distractors/")
+                            help="with --object: a distractor of the identification library, whose artifacts "
+                                 "live under <artifacts>/distractors/")
     if add_arguments is not None:
         add_arguments(parser)
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     cfg = load_config(args.overrides, args.params)
     if per_object:
+        if args.distractors:
+            args.names = [str(name) for name in cfg.identify.distractors]
+        else:
+            args.names = [args.object]
         artifacts = cfg.paths.artifacts_dir
-        args.objects_dir = distractors_dir(artifacts) if args.distractor else Path(artifacts)
+        in_library = args.distractor or args.distractors
+        args.objects_dir = distractors_dir(artifacts) if in_library else Path(artifacts)
     return args, cfg
 
 

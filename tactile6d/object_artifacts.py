@@ -18,17 +18,17 @@ from tactile6d.errors import ArtifactError
 from tactile6d.io import read_artifact
 
 # The per-object stages as dvc.yaml names them for the identification library's distractors, whose
-# artifacts live under ``layout.distractors_dir``.
-DISTRACTOR_STAGES = {"prepare_object": "prepare_distractor", "sample_surface": "sample_distractor",
-                     "render_database": "render_distractor", "encode_database": "encode_distractor"}
+# artifacts live under ``layout.distractors_dir``: one stage each for the whole library.
+DISTRACTOR_STAGES = {"prepare_object": "prepare_distractors", "sample_surface": "sample_distractors",
+                     "render_database": "render_distractors", "encode_database": "encode_distractors"}
 
 
 def require(path: Path, stage: str, name: str | None = None) -> Path:
     """``path`` if it is a file; else an ArtifactError naming the DVC stage that makes it (for object
-    ``name`` when the stage runs per object)."""
+    ``name`` when the stage runs per object; a distractor's stage makes the whole library)."""
     if not path.is_file():
         if name is not None and path.parent.parent.name == layout.distractors_dir("").name:
-            stage = DISTRACTOR_STAGES.get(stage, stage)
+            stage, name = DISTRACTOR_STAGES.get(stage, stage), None
         target = stage if name is None else f"{stage}@{name}"
         raise ArtifactError(f"{path}: missing; make it with `dvc repro {target}` (or `dvc repro` for all)")
     return path

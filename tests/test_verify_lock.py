@@ -1,7 +1,7 @@
 """scripts/verify_lock.py: re-making a stage recorded in dvc.lock into a temporary directory.
 
 On a tiny DVC repository made here (two stages, a file, an HDF5 file, a directory and a cache: false
-out), then, if the data are there, on the project's own sample_distractor@prim_box.
+out), then, if the data are there, on the project's own sample_surface@036_wood_block.
 """
 
 import hashlib
@@ -225,26 +225,28 @@ def test_changed_data_dep_or_param_is_not_verified(repo):
 
 
 @pytest.mark.slow
-def test_project_stage_remade_byte_for_byte(tmp_path):
-    """sample_distractor@prim_box in a copy of this checkout, its dep made first (and verified) by
-    prepare_distractor@prim_box, so that nothing is read from or written to this checkout's artifacts/."""
+def test_project_stage_remade_byte_for_byte(tmp_path, data_dir):
+    """sample_surface@036_wood_block in a copy of this checkout, its dep made first (and verified) by
+    prepare_object@036_wood_block (the quickest object to prepare, ~5 s), so that nothing is read from or
+    written to this checkout's artifacts/."""
     tracked = run(["git", "ls-files"], REPO).stdout.split()
     root = tmp_path / "project"
     for rel in tracked:
         if (REPO / rel).is_file():
             (root / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(REPO / rel, root / rel)
-    status, out = verify(root, "prepare_distractor@prim_box")
+    env = dict(os.environ, TACTILE6D_DATA=str(data_dir))
+    status, out = verify(root, "prepare_object@036_wood_block", env=env)
     if status != 0 and "code changed" in out:
         pytest.skip(f"this checkout's code differs from dvc.lock and changes the object:\n{out}")
     assert status == 0, out
-    run([sys.executable, "-m", "stages.prepare_object", "--params", "params.yaml", "--object", "prim_box",
-         "--distractor"], root)
-    status, out = verify(root, "sample_distractor@prim_box")
+    run([sys.executable, "-m", "stages.prepare_object", "--params", "params.yaml", "--object", "036_wood_block"],
+        root, env=env)
+    status, out = verify(root, "sample_surface@036_wood_block", env=env)
     if status != 0 and "code changed" in out:
         pytest.skip(f"this checkout's code differs from dvc.lock and changes the surface:\n{out}")
     assert status == 0, out
-    assert "sample_distractor@prim_box: artifacts/distractors/surfaces/prim_box.h5: identical" in out
+    assert "sample_surface@036_wood_block: artifacts/surfaces/036_wood_block.h5: identical" in out
 
 
 def test_torch_checkpoints_compare_by_tensors_and_the_training_seconds_are_timings(tmp_path):
