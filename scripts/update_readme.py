@@ -6,7 +6,7 @@ writes through scripts/record_reproduce_time.py) between ``<!-- reproduce-time:s
 hand) the time sentence is left as it is.
 
 The headline is the page's first line (when and where it was generated) and the sections named in
-``HEADLINE`` (the test set, off-axis, identification, and the time of each stage of the run); the other
+``HEADLINE`` (the test set, off-axis, the real set-ups, identification, and the time of each stage of the run); the other
 sections (per object, validation, sensor count, ablation, autoencoder, scenes)
 stay on reports/results.md, which the README links to, so that the README stays short.
 """
@@ -27,6 +27,7 @@ TIME_START, TIME_END = "<!-- reproduce-time:start -->", "<!-- reproduce-time:end
 # Section headings (without "### ") copied into the README, in the page's order.
 HEADLINE = ("The paper's 40 triplets (test set), L = 3",
             "Off-axis scenes (generated; sensors tilted and touching off the gel's centre)",
+            "Real set-ups: light that drifted, sensor poses off (generated)",
             "Which object: identification over the library",
             "Stage times")
 

@@ -3,10 +3,11 @@
 Every variant of config section ``ablation.variants`` is applied to the ``select``, ``optimize`` and
 ``rank`` sections (``tactile6d.variants``: method ``ours``; solver ``ablation.solver`` unless the variant
 sets its own; a variant may start from a preset's sections), and each scene of the set is estimated from
-all its sensors; a variant of ``ablation.curves`` also from every subset of 1, ..., L of them
-(``tactile6d.sensor_subsets``, as in sensor_study). A variant of ``ablation.only_on`` runs on the scene
-sets it lists only. Two variants that come out as the same settings (e.g. the last step of the chain and
-``default``) are estimated once. Reads the scenes and each object's artifacts; writes
+all its sensors; on the scene sets of ``ablation.curves_on``, a variant of ``ablation.curves`` also from
+every subset of 1, ..., L of them (``tactile6d.sensor_subsets``, as in sensor_study). A variant of
+``ablation.only_on`` runs on the scene sets it lists only; a scene set of ``ablation.variants_on`` runs
+the variants it lists only. Two variants that come out as the same settings (e.g. the last step of the
+chain and ``default``) are estimated once. Reads the scenes and each object's artifacts; writes
 ``artifacts/metrics/ablation_<set>.json``: variant -> ``L<count>`` -> the evaluation's metric names, plus
 ``time_s_median`` (per estimate).
 
@@ -36,6 +37,7 @@ from tactile6d.io import read_artifact, write_json
 from tactile6d.optimize import use_cpu_devices
 from tactile6d.sensor_subsets import (
     SubsetRows,
+    scene_backgrounds,
     score_scene_subsets,
     summarise_subset_rows,
 )
@@ -51,7 +53,8 @@ def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.nd
     run: a token of this stage run, so that a worker process that ran an earlier one reloads (the
     artifacts may have changed); cfg_container: the variant's whole config (``variant_config``) as plain
     containers; scene: ``object`` (str), ``T_world_object`` (4, 4), ``T_world_sensors`` (L, 4, 4),
-    ``images`` (L, 320, 240, 3) uint8. The variant's estimators (one per object, loaded when first
+    ``images`` (L, 320, 240, 3) uint8, ``backgrounds`` (L, 320, 240, 3) uint8 the sensors' own no-contact
+    images or None. The variant's estimators (one per object, loaded when first
     needed) and the objects' references are kept per process (``process_cache``): one variant's
     estimators at a time, so that a process holds no more than the former one-variant-per-process did.
     """
@@ -66,16 +69,21 @@ def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.nd
     if obj not in references:
         references[obj] = evaluation.load_object_reference(artifacts, obj)
     return {L: score_scene_subsets(estimators[obj], scene["T_world_sensors"], scene["images"], scene["T_world_object"],
-                                   references[obj], L)
+                                   references[obj], L, scene["backgrounds"])
             for L in counts}
 
 
-def variants_on(scene_set: str, names: list[str], only_on: dict) -> list[str]:
-    """The variants of ``names`` that run on ``scene_set`` (``ablation.only_on``: variant -> its sets)."""
-    unknown = sorted(set(only_on) - set(names))
+def variants_on(scene_set: str, names: list[str], only_on: dict, per_set: dict | None = None) -> list[str]:
+    """The variants of ``names`` that run on ``scene_set``: ``ablation.only_on`` (variant -> its sets) and
+    ``ablation.variants_on`` (``per_set``: set -> its variants; a set not listed runs them all)."""
+    per_set = per_set or {}
+    listed = {v for variants in per_set.values() for v in variants}
+    unknown = sorted((set(only_on) | listed) - set(names))
     if unknown:
-        raise ConfigError(f"ablation.only_on names variants that ablation.variants does not have: {unknown}")
-    return [name for name in names if name not in only_on or scene_set in only_on[name]]
+        raise ConfigError(f"ablation.only_on or ablation.variants_on names variants that ablation.variants does "
+                          f"not have: {unknown}")
+    return [name for name in names if (name not in only_on or scene_set in only_on[name])
+            and (scene_set not in per_set or name in per_set[scene_set])]
 
 
 def sensor_counts(names: list[str], n_sensors: int, curves: list[str], variants: list[str]) -> dict[str, tuple[int, ...]]:
@@ -96,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
         raise ConfigError(f"ablation.workers must be >= 1, got {workers}")
     artifacts = cfg.paths.artifacts_dir
     only_on = OmegaConf.to_container(cfg.ablation.only_on) if cfg.ablation.only_on else {}
-    names = variants_on(args.scene_set, list(cfg.ablation.variants), only_on)
+    per_set = OmegaConf.to_container(cfg.ablation.variants_on) if cfg.ablation.get("variants_on") else {}
+    names = variants_on(args.scene_set, list(cfg.ablation.variants), only_on, per_set)
     variants = {name: variant_config(cfg, name, cfg.ablation.variants[name]) for name in names}
     first_with = {}  # settings key -> the first variant that has those settings
     for name, variant_cfg in variants.items():
@@ -106,13 +115,16 @@ def main(argv: list[str] | None = None) -> int:
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in scenes["objects"]]
     n_sensors = scenes["T_world_sensors"].shape[1] if objects else 0
-    counts_of = sensor_counts(names, n_sensors, list(cfg.ablation.curves or []), list(cfg.ablation.variants))
+    # Curves only where the report draws them (ablation.curves_on); elsewhere every variant at L alone.
+    curves = list(cfg.ablation.curves or []) if args.scene_set in list(cfg.ablation.curves_on or []) else []
+    counts_of = sensor_counts(names, n_sensors, curves, list(cfg.ablation.variants))
     counts = {first: () for first in unique}  # a variant estimated once for several names: every count they ask for
     for name, variant_cfg in variants.items():
         first = first_with[estimator_settings_key(variant_cfg)]
         counts[first] = tuple(sorted({*counts[first], *counts_of[name]}))
     scene_data = [{"object": obj, "T_world_object": scenes["T_world_object"][s],
-                   "T_world_sensors": scenes["T_world_sensors"][s], "images": scenes["images"][s]}
+                   "T_world_sensors": scenes["T_world_sensors"][s], "images": scenes["images"][s],
+                   "backgrounds": scene_backgrounds(scenes, s)}
                   for s, obj in enumerate(objects)]
     containers = {}
     for name in unique:

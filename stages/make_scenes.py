@@ -1,6 +1,8 @@
-"""Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported; ``validation``, ``offaxis`` and
-``calibration`` generated: the last from ``identify.calibration_scenes``, the scenes stage calibrate_identify
-fits on).
+"""Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported; ``validation``, ``offaxis``,
+``variation``, ``kinematic`` and ``calibration`` generated: the last from ``identify.calibration_scenes``,
+the scenes stage calibrate_identify fits on). A generated set's section may add what a real set-up does
+to its images or sensor poses (``light``, ``kinematics``: ``tactile6d.perturb``), drawn after the clean
+set from a generator of its own, so the set's objects, poses and contacts are those of its clean draw.
 
 Reads the objects' artifacts (meshes for contact types; surface points so validation contacts avoid
 database points), the paper's triplets from the data directory, config sections ``scenes`` and
@@ -16,7 +18,7 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from tactile6d import contact, layout, scenes
+from tactile6d import contact, layout, perturb, scenes
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import exit_on_error
@@ -24,7 +26,7 @@ from tactile6d.io import read_artifact, read_scene_dir, write_artifact
 from tactile6d.render import DigitRenderer, load_background_bgr
 from tactile6d.stage_clock import timed
 
-SCENE_SETS = ("caddeo2023", "validation", "offaxis", "calibration")
+SCENE_SETS = ("caddeo2023", "validation", "offaxis", "variation", "kinematic", "calibration")
 
 
 def load_mesh(artifacts_dir: str, name: str) -> trimesh.Trimesh:
@@ -88,8 +90,24 @@ def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, art
                          for i, T in enumerate(T_world_sensors)])
 
     with tqdm(total=len(object_names) * spec.scenes_per_object, desc=f"{scene_set} scenes", unit="scene") as bar:
-        return scenes.generate_validation(object_names, meshes, surfaces, database, render, spec, int(v.seed),
-                                          progress=bar.update)
+        out = scenes.generate_validation(object_names, meshes, surfaces, database, render, spec, int(v.seed),
+                                         progress=bar.update)
+    return real_set_up(out, v, renderer.background.astype(np.uint8))  # RGB, as the scenes' images
+
+
+def real_set_up(out: scenes.SceneSet, v, background_rgb: np.ndarray) -> scenes.SceneSet:
+    """A generated set as a real set-up gives it: its section's ``light`` and ``kinematics``, when it has
+    them (``tactile6d.perturb``), each from its own generator seeded by the set's seed."""
+    if v.get("light") is not None:
+        light = v.light
+        out = perturb.drift_light(out, background_rgb, float(light.gain_max),
+                                  (float(light.gamma_min), float(light.gamma_max)), float(light.noise_std),
+                                  float(light.rerecorded), np.random.default_rng((int(v.seed), 1)))
+    if v.get("kinematics") is not None:
+        k = v.kinematics
+        out = perturb.perturb_sensor_poses(out, 1e-3 * float(k.sigma_mm), np.radians(float(k.sigma_deg)),
+                                           np.random.default_rng((int(v.seed), 2)))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

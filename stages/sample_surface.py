@@ -2,7 +2,8 @@
 
 Reads ``artifacts/objects/<name>.h5`` and config section ``sample``; writes
 ``artifacts/surfaces/<name>.h5`` (with ``--distractor``, or ``--distractors`` for the whole identification
-library in one run: both under ``artifacts/distractors/``).
+library in one run, its objects spread over ``sample.workers`` local processes: both under
+``artifacts/distractors/``).
 """
 
 from __future__ import annotations
@@ -15,21 +16,21 @@ import trimesh
 from tactile6d import layout
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.errors import ConfigError, exit_on_error
+from tactile6d.executor import executor_from_config
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.stage_clock import timed
 from tactile6d.surface import nearest_neighbour_distances, sample_surface_even
 
 
-def sample_object(name: str, cfg, artifacts) -> None:
-    """Write ``artifacts/surfaces/<name>.h5`` under ``artifacts`` from the object's cleaned mesh there."""
+def sample_object(name: str, cfg, artifacts) -> str:
+    """Write ``artifacts/surfaces/<name>.h5`` under ``artifacts`` from the object's cleaned mesh there; one
+    executor task. Returns the line that describes it."""
     obj = read_artifact(layout.object_file(artifacts, name), "object")
     mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
     rng = np.random.default_rng(cfg.sample.seed)
     points, normals, faces = sample_surface_even(mesh, int(cfg.sample.M), rng, int(cfg.sample.oversample))
     nn = nearest_neighbour_distances(points)
     spacing = {"nn_mean_m": float(nn.mean()), "nn_min_m": float(nn.min()), "nn_min_over_mean": float(nn.min() / nn.mean())}
-    print(f"{name}: {len(points)} points, nearest-neighbour distance mean {1000 * nn.mean():.2f} mm, "
-          f"min/mean {spacing['nn_min_over_mean']:.2f}")
     write_artifact(
         layout.surface_file(artifacts, name),
         "surface",
@@ -37,14 +38,23 @@ def sample_object(name: str, cfg, artifacts) -> None:
         attrs={"object": name, "spacing": spacing},
         config={"sample": section_to_dict(cfg, "sample")},
     )
+    return (f"{name}: {len(points)} points, nearest-neighbour distance mean {1000 * nn.mean():.2f} mm, "
+            f"min/mean {spacing['nn_min_over_mean']:.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
     if int(cfg.sample.M) < 1 or int(cfg.sample.oversample) < 1:
         raise ConfigError(f"sample.M and sample.oversample must be positive, got {cfg.sample.M}, {cfg.sample.oversample}")
-    for name in args.names:
-        sample_object(name, cfg, args.objects_dir)
+    workers = int(cfg.sample.workers)
+    if workers < 1:
+        raise ConfigError(f"sample.workers must be >= 1, got {workers}")
+    names = args.names
+    with executor_from_config(cfg, max(1, min(workers, len(names)))) as executor:
+        lines = executor.map(sample_object, names, [cfg] * len(names), [args.objects_dir] * len(names),
+                             desc="sample_surface" if len(names) > 1 else None)
+    for line in lines:
+        print(line)
     return 0
 
 

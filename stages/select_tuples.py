@@ -35,6 +35,7 @@ from tactile6d.settings import SelectSettings
 from tactile6d.stage_clock import timed
 from tactile6d.steps.encode import (
     LatentAngleEncoder,
+    align_light,
     load_background,
     load_database_angles,
     load_patch_model,
@@ -78,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     n_scenes, n_sensors = scenes.T_world_sensors.shape[:2]
     database = Database(cfg, settings.method == "ours", settings.uses_normals)
     patch_model = load_patch_model(artifacts) if settings.reads_patches else None
-    no_contact = database.background if settings.reads_patches else None
+    # The no-contact image every sensor is read against, unless the set carries each sensor's own.
+    no_contact = database.background if settings.method == "ours" else None
 
     tuples, errors, contacts = [], [], []
     angles = np.full((n_scenes, n_sensors), np.nan)
@@ -94,9 +96,12 @@ def main(argv: list[str] | None = None) -> int:
         T = check_sensor_poses(scenes.T_world_sensors[s])
         t0 = time.perf_counter()
         images = check_images(scenes.images[s], n_sensors) if encoder is not None else None
-        contacts.append(read_contacts(settings, T, images, no_contact, patch_model))
+        own = scenes.backgrounds_of(s) if encoder is not None else None
+        scene_no_contact = no_contact if own is None else own
+        images, _ = align_light(settings, images, scene_no_contact)
+        contacts.append(read_contacts(settings, T, images, scene_no_contact, patch_model))
         if encoder is not None:
-            angles[s] = read_angles(encoder, settings, images, contacts[s], T, no_contact)
+            angles[s] = read_angles(encoder, settings, images, contacts[s], T, scene_no_contact, own)
         t1 = time.perf_counter()
         seconds[s, 0] = t1 - t0
         try:

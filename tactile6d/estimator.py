@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from tactile6d import collision, layout, ranking
+from tactile6d import collision, layout, photometric, ranking
 from tactile6d import optimize as optimization
 from tactile6d.config import compose_config
 from tactile6d.contact import sample_surface
@@ -55,7 +55,8 @@ class Estimate:
     penetrations (K, L) m; angles (L,) the images' latent angles (rad; None for the baseline);
     contacts: the sensors' contact points and normals the estimate used (``tactile6d.contacts``);
     selection: the selection diagnostics; n_hypotheses: poses ranked; seconds: wall-clock time per step
-    (encode, select, optimize, rank) and in total.
+    (encode, select, optimize, rank) and in total; light: how each image's light differed from its
+    no-contact image's (``photometric.LightFit``, sensor order), None when the images were read as given.
     """
 
     poses: np.ndarray
@@ -67,6 +68,7 @@ class Estimate:
     selection: Selection
     n_hypotheses: int
     seconds: dict[str, float] = field(default_factory=dict)
+    light: list[photometric.LightFit] | None = None
 
     @property
     def best(self) -> np.ndarray:
@@ -97,6 +99,7 @@ class Estimate:
                 "capped": sel.capped,
             },
             "n_hypotheses": self.n_hypotheses,
+            "light": None if self.light is None else [fit.to_dict() for fit in self.light],
         }
 
 
@@ -243,6 +246,19 @@ class Estimator:
         warn_if_underdetermined(T.shape[0])
         return T, images
 
+    def align_light(self, images, backgrounds=None) -> tuple[np.ndarray | None, list[photometric.LightFit] | None]:
+        """Checked images (L, 320, 240, 3) -> (the same brought to their no-contact images' light, their fits),
+        or (as given, None) where ``select.align_light`` is off or there are no no-contact images
+        (``steps.encode.align_light``); a ``photometric.LightWarning`` for each image whose light cannot be
+        trusted. backgrounds as for ``estimate``."""
+        if images is None:
+            return None, None
+        aligned, fits = encode_step.align_light(self.settings.select, images,
+                                                self.backgrounds(len(images), backgrounds))
+        if fits is not None:
+            photometric.warn_about_light(fits, stacklevel=4)
+        return aligned, fits
+
     def encode(self, images, contacts: Contacts | None = None, T_world_sensors=None, backgrounds=None) -> np.ndarray:
         """(L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad).
 
@@ -298,12 +314,15 @@ class Estimator:
         backgrounds: the sensors' no-contact images for this call, (320, 240, 3) uint8 RGB for all or
         (L, 320, 240, 3) one per sensor in sensor order; None: the estimator's own (``from_artifacts``'s
         ``background``). The inputs are checked first (``check_scene``): InputError for a bad one, an
-        ``inputs.UnderdeterminedPoseWarning`` for one sensor.
+        ``inputs.UnderdeterminedPoseWarning`` for one sensor. Then each image is brought to its no-contact
+        image's light (``align_light``; a ``photometric.LightWarning`` where that light cannot be trusted),
+        and only then read.
         """
         start = time.perf_counter()
         T, images = self.check_scene(T_world_sensors, images, backgrounds)
         ours = self.settings.select.method == "ours"
         t0 = time.perf_counter()
+        images, light = self.align_light(images, backgrounds)
         contacts = self.contacts(T, images, backgrounds)
         angles = self.encode(images, contacts, T, backgrounds) if ours else None
         encode_seconds = time.perf_counter() - t0
@@ -311,7 +330,7 @@ class Estimator:
         steps = {k: estimate.seconds[k] for k in STEPS[1:]}
         estimate.seconds.clear()
         estimate.seconds.update(encode=encode_seconds, **steps, total=time.perf_counter() - start)
-        return estimate
+        return replace(estimate, light=light)
 
     def estimate_encoded(self, T_world_sensors, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
         """The ranked poses from what the images say, already read: the sensors' contacts (as ``contacts``

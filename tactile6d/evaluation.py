@@ -127,7 +127,8 @@ def summarise(errors: dict[str, np.ndarray]) -> dict[str, float]:
 
 def summarise_by_object(errors: dict[str, np.ndarray], objects: np.ndarray) -> dict[str, dict[str, float]]:
     """``summarise`` per object, plus ``"average"``: the mean over objects of each figure (the keys of
-    ``SUMMARY_KEYS`` that ``summarise`` gives)."""
+    ``SUMMARY_KEYS`` that ``summarise`` gives), and ``pos_err_cm_top1_median``, the median over all scenes
+    of the best pose's positional error."""
     objects = np.asarray(objects)
     per_object = {
         str(obj): summarise({key: value[objects == obj] for key, value in errors.items()})
@@ -138,6 +139,10 @@ def summarise_by_object(errors: dict[str, np.ndarray], objects: np.ndarray) -> d
             key: float(np.nanmean([row[key] for row in per_object.values()]))
             for key in SUMMARY_KEYS if all(key in row for row in per_object.values())
         }
+        # The median over every scene (not per object): a few scenes far off move the mean, not it.
+        top1 = np.asarray(errors["position"])[:, 0]
+        if np.isfinite(top1).any():
+            per_object["average"]["pos_err_cm_top1_median"] = float(100.0 * np.nanmedian(top1))
     return per_object
 
 

@@ -45,6 +45,7 @@ from tactile6d.executor import (
 from tactile6d.inputs import check_sensor_poses
 from tactile6d.object_artifacts import require
 from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.sensor_subsets import scene_backgrounds
 from tactile6d.settings import Settings
 from tactile6d.steps import encode as encode_step
 from tactile6d.steps import rank as rank_step
@@ -258,9 +259,10 @@ class Identifier:
     def encode(self, T_world_sensors, images=None, backgrounds=None) -> SceneEncoding:
         """Read the scene's images once: contacts and latents (module docstring, step 1), each image against
         its sensor's no-contact image (backgrounds as for ``Estimator.estimate``; None: the library's own),
-        after the checks of ``Estimator.check_scene``."""
+        after the checks of ``Estimator.check_scene`` and the light's alignment (``Estimator.align_light``)."""
         first = self.full[self.names[0]]
         T, images = first.check_scene(T_world_sensors, images, backgrounds)
+        images, _ = first.align_light(images, backgrounds)
         contacts = first.contacts(T, images, backgrounds)
         if self.settings.select.method != "ours":
             return SceneEncoding(contacts, None)
@@ -427,7 +429,7 @@ def identify_scene_set(identifier: Identifier, scenes: Mapping[str, np.ndarray],
     for s in tqdm(range(len(scenes["names"])), desc=desc, unit="scene"):
         name = str(scenes["objects"][s])
         T_sensors = scenes["T_world_sensors"][s]
-        result = identifier.identify(T_sensors, scenes["images"][s])
+        result = identifier.identify(T_sensors, scenes["images"][s], scene_backgrounds(scenes, s))
         order = [o.name for o in result.objects]
         truth.append(objects.index(name))
         predicted.append(objects.index(order[0]))

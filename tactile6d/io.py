@@ -96,6 +96,9 @@ class Artifact:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.data[name]
 
+    def __contains__(self, name: str) -> bool:
+        return name in self.data
+
 
 def _read_datasets(group: h5py.Group, prefix: str = "") -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}

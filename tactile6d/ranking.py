@@ -74,6 +74,13 @@ def distinct_in_order(poses: np.ndarray, order: np.ndarray, tol_translation: flo
     return kept
 
 
+def penetration_cost(depths: np.ndarray, allowance: float = 0.0) -> np.ndarray:
+    """(P, L) penetration depths (m) -> (P,) what a pose's score pays for them: the deepest, less
+    ``allowance`` (the sensor poses' expected error: a true pose seen through sensor poses off by a
+    millimetre penetrates a sensor by about that much), never below 0."""
+    return np.maximum(np.asarray(depths).max(axis=1) - allowance, 0.0)
+
+
 def rank_poses(
     poses: np.ndarray,
     losses: np.ndarray,
@@ -83,13 +90,17 @@ def rank_poses(
     tol_rotation: float,
     depth_bounds: Sequence[Callable[[np.ndarray], np.ndarray]] = (),
     batch: int = 256,
+    allowance: float = 0.0,
 ) -> RankedPoses:
-    """The top_k distinct poses by R = E + max_i d_i, scoring only the poses that can make it.
+    """The top_k distinct poses by R = E + max(max_i d_i - allowance, 0), scoring only the poses that can
+    make it.
 
     poses (P, 4, 4), losses (P,) m, penetrations: a function (B, 4, 4) -> (B, L) depths in metres
     (e.g. ``functools.partial(collision.poses_to_fcl_depths, model, T_world_sensor=...)``), which are
     raised to the pose's bounds; top_k, tol_translation m, tol_rotation rad, depth_bounds: functions
-    (B, 4, 4) -> (B, L) lower bounds on the depths, cheapest first; batch: poses handled per step.
+    (B, 4, 4) -> (B, L) lower bounds on the depths, cheapest first; batch: poses handled per step;
+    allowance: m of penetration that costs nothing (``penetration_cost``). The depths returned are the
+    penetrations themselves.
     """
     poses = np.asarray(poses, dtype=np.float64)
     losses = np.asarray(losses, dtype=np.float64)
@@ -121,7 +132,7 @@ def rank_poses(
                 if lower is None:
                     lower = np.zeros((len(poses), bound.shape[1]))
                 lower[chunk] = np.maximum(lower[chunk], bound)
-                key[chunk] = np.maximum(key[chunk], losses[chunk] + bound.max(axis=1))
+                key[chunk] = np.maximum(key[chunk], losses[chunk] + penetration_cost(bound, allowance))
                 level[chunk] = lvl + 1
         chunk = open_[at == n_levels]
         if chunk.size:
@@ -131,7 +142,7 @@ def rank_poses(
             level[chunk] = n_levels + 1
             depth_rows.append(depths)
             scored = np.concatenate([scored, chunk])
-            scores = np.concatenate([scores, losses[chunk] + depths.max(axis=1)])
+            scores = np.concatenate([scores, losses[chunk] + penetration_cost(depths, allowance)])
             # Positions into `scored`, best score first, ties by input position.
             kept = distinct_in_order(poses[scored], np.lexsort((scored, scores)), tol_translation, tol_rotation, top_k)
     depths = np.concatenate(depth_rows)
@@ -152,11 +163,12 @@ def rank_poses_brute_force(
     top_k: int,
     tol_translation: float,
     tol_rotation: float,
+    allowance: float = 0.0,
 ) -> RankedPoses:
     """Reference for ``rank_poses``: score every pose, then de-duplicate and take the top k."""
     poses = np.asarray(poses, dtype=np.float64)
     losses = np.asarray(losses, dtype=np.float64)
     depths = np.asarray(penetrations(poses), dtype=np.float64)
-    scores = losses + depths.max(axis=1)
+    scores = losses + penetration_cost(depths, allowance)
     kept = distinct_in_order(poses, np.lexsort((np.arange(len(scores)), scores)), tol_translation, tol_rotation, top_k)
     return RankedPoses(poses[kept], scores[kept], losses[kept], depths[kept], np.asarray(kept, dtype=np.int64), len(poses))

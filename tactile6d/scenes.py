@@ -6,7 +6,9 @@ A scene is one object at a known pose touched by L sensors. Arrays (S scenes, L 
 ``objects`` (S,) str, ``T_world_object`` (S, 4, 4), ``T_world_sensors`` (S, L, 4, 4),
 ``images`` (S, L, 320, 240, 3) uint8 RGB, ``contact_points`` (S, L, 3) and ``contact_normals`` (S, L, 3)
 in the world frame (outward surface normals), ``contact_types`` (S, L) codes of
-``tactile6d.contact.CONTACT_TYPES``.
+``tactile6d.contact.CONTACT_TYPES``; optionally ``backgrounds`` (S, L, 320, 240, 3) uint8 RGB, each
+sensor's own no-contact image (sets whose sensors have their own, ``tactile6d.perturb``; without, every
+sensor's is ``render.background``'s). A set may carry more arrays (``extra``: how it was perturbed).
 """
 
 from __future__ import annotations
@@ -56,25 +58,34 @@ class SceneSet:
     contact_points: np.ndarray
     contact_normals: np.ndarray
     contact_types: np.ndarray
+    backgrounds: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.names)
 
+    def backgrounds_of(self, s: int) -> np.ndarray | None:
+        """Scene s's sensors' own no-contact images (L, 320, 240, 3), or None when the set has none."""
+        return None if self.backgrounds is None else self.backgrounds[s]
+
     def as_datasets(self) -> dict[str, np.ndarray]:
-        return {k: getattr(self, k) for k in SCENE_FIELDS}
-
-
+        own = {} if self.backgrounds is None else {"backgrounds": self.backgrounds}
+        return {**{k: getattr(self, k) for k in SCENE_FIELDS}, **own, **self.extra}
 
 
 def scene_set_from_artifact(art: Artifact) -> SceneSet:
     """A SceneSet from a ``scenes`` artifact (``tactile6d.io.read_artifact(path, "scenes")``)."""
-    return SceneSet(**{k: np.asarray(art[k]) for k in SCENE_FIELDS})
+    extra = {k: np.asarray(v) for k, v in art.data.items() if k not in SCENE_FIELDS and k != "backgrounds"}
+    backgrounds = np.asarray(art["backgrounds"]) if "backgrounds" in art else None
+    return SceneSet(**{k: np.asarray(art[k]) for k in SCENE_FIELDS}, backgrounds=backgrounds, extra=extra)
 
 
 def concatenate(sets: list[SceneSet]) -> SceneSet:
-    """Scenes of several sets (same L) as one set."""
-    return SceneSet(**{k: np.concatenate([getattr(s, k) for s in sets]) for k in SCENE_FIELDS})
+    """Scenes of several sets (same L) as one set; their own no-contact images only if every set has them."""
+    own = [s.backgrounds for s in sets]
+    backgrounds = None if any(b is None for b in own) else np.concatenate(own)
+    return SceneSet(**{k: np.concatenate([getattr(s, k) for s in sets]) for k in SCENE_FIELDS},
+                    backgrounds=backgrounds)
 
 
 def scene_set_from_known_sensors(

@@ -68,7 +68,8 @@ SCHEMAS: dict[str, Schema] = {
                 "contact_types", "no_contact", *IMAGE_DATASETS)),
         # The database latents (M, 128), the no-contact latent (128,), each image's latent angle (M,) rad.
         Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")),
-        Schema("scenes", 1, "make_scenes", SCENE_FIELDS),
+        # Version 2: sets may carry each sensor's own no-contact image (backgrounds) and how they were perturbed.
+        Schema("scenes", 2, "make_scenes", SCENE_FIELDS),
         # Candidate tuples per scene, with the selection's diagnostics and timings.
         Schema("tuples", 2, "select_tuples",
                CARRIED_FIELDS + CONTACT_FIELDS + PATCH_FIELDS

@@ -46,11 +46,13 @@ def estimate_and_score(
     images: np.ndarray | None,
     T_world_object: np.ndarray,
     reference: evaluation.ObjectReference,
+    backgrounds: np.ndarray | None = None,
 ) -> ScoredEstimate:
     """Estimate one scene's object pose from its sensors and score the ranked poses against the truth.
 
     T_world_sensors (L, 4, 4) and images (L, 320, 240, 3) uint8 (None for a method that reads none) go to
-    ``estimator.estimate``; T_world_object (4, 4) is the true pose; reference the object's
+    ``estimator.estimate``, with backgrounds (L, 320, 240, 3), the sensors' own no-contact images, when
+    the scene has them; T_world_object (4, 4) is the true pose; reference the object's
     (``evaluation.load_object_reference``). An estimate that matches nothing (``NoMatch``) counts as a
     failure (no poses: NaN errors, ``seconds`` None), as in evaluate; bad input raises.
     """
@@ -58,7 +60,7 @@ def estimate_and_score(
     try:
         with warnings.catch_warnings():  # one sensor's pose is under-determined: what the study measures
             warnings.simplefilter("ignore", UnderdeterminedPoseWarning)
-            est = estimator.estimate(T_world_sensors, images)
+            est = estimator.estimate(T_world_sensors, images, backgrounds)
         poses, n, seconds = est.poses, len(est.poses), est.seconds
     except NoMatch:  # nothing matched: a failed estimate
         poses, n, seconds = np.zeros((0, 4, 4)), 0, None
@@ -66,6 +68,12 @@ def estimate_and_score(
     errors = evaluation.scene_errors(poses, n, T_world_object, T_world_sensors, reference.points,
                                      reference.surface, tree=reference.tree)
     return ScoredEstimate(errors, seconds, wall_seconds)
+
+
+def scene_backgrounds(scenes: Mapping[str, np.ndarray], s: int) -> np.ndarray | None:
+    """Scene s's sensors' own no-contact images (L, 320, 240, 3) from a ``scenes`` artifact (``io.Artifact``)
+    or mapping, or None when the set has none (``scenes.SceneSet.backgrounds``)."""
+    return np.asarray(scenes["backgrounds"][s]) if "backgrounds" in scenes else None
 
 
 def sensor_subsets(n_sensors: int, count: int) -> list[tuple[int, ...]]:
@@ -91,14 +99,17 @@ def score_scene_subsets(
     T_world_object: np.ndarray,
     reference: evaluation.ObjectReference,
     count: int,
+    backgrounds: np.ndarray | None = None,
 ) -> SubsetRows:
-    """One scene (sensors (L, 4, 4), images (L, 320, 240, 3) uint8, true pose (4, 4)) estimated from each
-    subset of ``count`` of its L sensors by ``estimate_and_score``."""
+    """One scene (sensors (L, 4, 4), images (L, 320, 240, 3) uint8, true pose (4, 4), the sensors' own
+    no-contact images (L, 320, 240, 3) or None) estimated from each subset of ``count`` of its L sensors by
+    ``estimate_and_score``."""
     rows: dict[str, list[np.ndarray]] = {key: [] for key in ERROR_KEYS}
     seconds = []
     for subset in sensor_subsets(len(T_world_sensors), count):
         idx = list(subset)
-        scored = estimate_and_score(estimator, T_world_sensors[idx], images[idx], T_world_object, reference)
+        own = None if backgrounds is None else backgrounds[idx]
+        scored = estimate_and_score(estimator, T_world_sensors[idx], images[idx], T_world_object, reference, own)
         if scored.seconds is not None:
             seconds.append(float(scored.seconds["total"]))
         for key in ERROR_KEYS:
@@ -128,7 +139,8 @@ def evaluate_sensor_count(
     """Estimate every scene from every subset of ``count`` of its sensors and summarise.
 
     scenes: a ``scenes`` artifact (``objects`` (S,), ``T_world_object`` (S, 4, 4), ``T_world_sensors``
-    (S, L, 4, 4), ``images`` (S, L, 320, 240, 3)); estimators and references keyed by object name.
+    (S, L, 4, 4), ``images`` (S, L, 320, 240, 3), optionally ``backgrounds`` (S, L, 320, 240, 3)); estimators
+    and references keyed by object name.
     Returns the average row of ``evaluation.summarise_by_object`` (the metric keys of
     ``evaluation.SUMMARY_KEYS``; an empty dict for an empty set) and the wall-clock seconds of each
     estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate
@@ -137,7 +149,7 @@ def evaluate_sensor_count(
     objects = [str(o) for o in scenes["objects"]]
     rows = [
         score_scene_subsets(estimators[objects[s]], scenes["T_world_sensors"][s], scenes["images"][s],
-                            scenes["T_world_object"][s], references[objects[s]], count)
+                            scenes["T_world_object"][s], references[objects[s]], count, scene_backgrounds(scenes, s))
         for s in tqdm(range(len(objects)), desc=desc or f"L={count}", unit="scene", leave=False, disable=not progress)
     ]
     return summarise_subset_rows(rows, objects)

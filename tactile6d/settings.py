@@ -8,9 +8,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
+
 from tactile6d import selection
 from tactile6d.contacts import SOURCES
 from tactile6d.errors import ConfigError
+from tactile6d.sensor import GEL_CENTER
 
 METHODS = ("ours", "baseline")
 SOLVERS = ("fast", "gd")
@@ -43,6 +46,7 @@ class SelectSettings:
     normal_max_sensors: int | None
     contacts: str
     centre_images: bool
+    align_light: bool
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> SelectSettings:
@@ -72,6 +76,12 @@ class SelectSettings:
         """Whether each image's contact patch gives its sensor's contact: source ``patch``, method ``ours``
         (the baseline reads no image, so it keeps the paper's landmarks)."""
         return self.method == "ours" and self.contacts == "patch"
+
+    @property
+    def aligns_light(self) -> bool:
+        """Whether each image is brought to its no-contact image's light before it is read (method ``ours``:
+        the baseline reads no image)."""
+        return self.method == "ours" and bool(self.align_light)
 
     @property
     def centres_images(self) -> bool:
@@ -153,6 +163,8 @@ class RankSettings:
     agreement_depth_weight: float
     agreement_free_area_weight: float
     agreement_free_depth_weight: float
+    pose_sigma_mm: float
+    pose_sigma_deg: float
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> RankSettings:
@@ -170,9 +182,21 @@ class RankSettings:
                    out.agreement_depth_weight, out.agreement_free_area_weight, out.agreement_free_depth_weight)
         if min(weights) < 0:
             raise ConfigError(f"rank.agreement_* weights and margin must be >= 0, got {weights}")
+        if not (out.pose_sigma_mm >= 0 and out.pose_sigma_deg >= 0):
+            raise ConfigError(f"rank.pose_sigma_mm and rank.pose_sigma_deg must be >= 0, got {out.pose_sigma_mm}, "
+                              f"{out.pose_sigma_deg}")
         if out.agreement_step < 1 or 240 % out.agreement_step or 320 % out.agreement_step:
             raise ConfigError(f"rank.agreement_step must divide 240 and 320, got {out.agreement_step}")
         return out
+
+    @property
+    def penetration_allowance(self) -> float:
+        """m of penetration a pose's score does not pay for: how deep a true pose appears to press into a
+        sensor whose pose is off by ``pose_sigma_mm`` and ``pose_sigma_deg`` (per axis, one standard
+        deviation): the translation error along the gel's normal and the rotation's error at the gel
+        (``sensor.GEL_CENTER``'s distance from the sensor's origin), combined in quadrature."""
+        lever = float(np.linalg.norm(GEL_CENTER))
+        return float(np.hypot(1e-3 * self.pose_sigma_mm, lever * np.radians(self.pose_sigma_deg)))
 
     @property
     def uses_agreement(self) -> bool:

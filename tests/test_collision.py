@@ -144,6 +144,28 @@ def test_penetrating_pose_ranks_below_a_touching_one():
     np.testing.assert_array_equal(ranked.index, [1, 0])
     np.testing.assert_allclose(ranked.scores, [0.002, 0.001 + 0.0034], atol=1e-6)
     assert ranked.penetrations.shape == (2, 3)
+    # With an allowance of the sensor poses' expected error (rank.pose_sigma_*), a penetration within it
+    # costs nothing: the lower loss wins; the depths reported stay the penetrations themselves.
+    allowed = rk.rank_poses(np.stack([shifted, T_true]), np.array([0.001, 0.002]), score, 2, 0.001, 0.01,
+                            allowance=0.0035)
+    np.testing.assert_array_equal(allowed.index, [0, 1])
+    np.testing.assert_allclose(allowed.scores, [0.001, 0.002], atol=1e-6)
+    np.testing.assert_array_equal(allowed.penetrations, ranked.penetrations[::-1])
+
+
+def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
+    from tactile6d.config import compose_config
+    from tactile6d.sensor import GEL_CENTER
+    from tactile6d.settings import RankSettings
+
+    def allowance(mm, deg):
+        return RankSettings.from_cfg(compose_config([f"rank.pose_sigma_mm={mm}", f"rank.pose_sigma_deg={deg}"]).rank
+                                     ).penetration_allowance
+
+    assert allowance(0, 0) == 0.0 and allowance(1.5, 0) == pytest.approx(0.0015)
+    assert allowance(0, 1.0) == pytest.approx(np.linalg.norm(GEL_CENTER) * np.radians(1.0))
+    assert allowance(1.5, 1.5) == pytest.approx(np.hypot(0.0015, np.linalg.norm(GEL_CENTER) * np.radians(1.5)))
+    np.testing.assert_allclose(rk.penetration_cost(np.array([[0.001, 0.003], [0.0, 0.0005]]), 0.002), [0.001, 0.0])
 
 
 def test_lazy_ranking_equals_scoring_everything():
@@ -172,6 +194,10 @@ def test_lazy_ranking_equals_scoring_everything():
         assert lazy.n_scored == sum(calls)
         full = rk.rank_poses_brute_force(poses, losses, score, top_k, tol_t, tol_r)
         np.testing.assert_array_equal(lazy.index, full.index)
+        allowed = rk.rank_poses(poses, losses, score, top_k, tol_t, tol_r, depth_bounds=lb, batch=16, allowance=0.002)
+        allowed_full = rk.rank_poses_brute_force(poses, losses, score, top_k, tol_t, tol_r, allowance=0.002)
+        np.testing.assert_array_equal(allowed.index, allowed_full.index)
+        np.testing.assert_array_equal(allowed.scores, allowed_full.scores)
         np.testing.assert_array_equal(lazy.scores, full.scores)
         np.testing.assert_array_equal(lazy.penetrations, full.penetrations)
         assert np.all(np.diff(lazy.scores) >= 0) and len(lazy.index) == top_k

@@ -16,7 +16,7 @@ from test_estimator import (
 )
 from test_patch import smooth_background
 
-from tactile6d import collision, contacts, patch, sensor
+from tactile6d import collision, contacts, patch, photometric, sensor
 from tactile6d import estimator as est
 from tactile6d.errors import ConfigError, InputError
 from tactile6d.geometry import invert_pose, make_pose, rotvec_to_rotmat
@@ -189,6 +189,29 @@ def test_landmark_contacts_have_no_patch_to_compare_with_and_rank_without_it(ren
     asked = make_estimator(rendered, **{"rank.agreement_weight": 0.01}).estimate(T, images)
     np.testing.assert_array_equal(asked.poses, plain.poses)
     np.testing.assert_array_equal(asked.scores, plain.scores)
+
+
+@pytest.mark.slow
+def test_drifted_light_is_aligned_before_the_images_are_read(rendered):
+    """Each sensor's light drifted on its own (gain +-10 %, gamma 0.83-1.2): the estimate reads the same
+    contacts as under the no-contact image's light, and reports each image's fit; read as given, the
+    patches move. Light far beyond a unit's drift is a warning."""
+    T, images = rendered["T_world_sensors"], rendered["images"]
+    gains, gammas = [[1.1, 0.92, 1.05], [0.9, 1.08, 0.95], [1.05, 1.1, 0.9]], [[0.85, 1.15, 1.0], [1.2, 0.9, 1.1], [1.0, 0.83, 1.18]]
+    drifted = np.stack([photometric.drift_light(im, g, e) for im, g, e in zip(images, gains, gammas)])
+    patch_contacts = {"select.contacts": "patch"}
+    clean = make_estimator(rendered, **patch_contacts).estimate(T, images)
+    aligned = make_estimator(rendered, **patch_contacts).estimate(T, drifted)
+    as_given = make_estimator(rendered, **patch_contacts, **{"select.align_light": False}).estimate(T, drifted)
+    assert as_given.light is None and len(aligned.light) == 3
+    assert all(fit.trustworthy for fit in aligned.light)
+    assert aligned.to_dict()["light"][1]["gamma"][0] == pytest.approx(1.2, abs=0.1)
+    moved = np.linalg.norm(aligned.contacts.points - clean.contacts.points, axis=1)
+    moved_as_given = np.linalg.norm(as_given.contacts.points - clean.contacts.points, axis=1)
+    assert moved.max() < 0.001 < moved_as_given.max()
+    with pytest.warns(photometric.LightWarning, match="image 0: its light would differ by a gain"):
+        make_estimator(rendered, **patch_contacts).estimate(T, np.stack([photometric.drift_light(images[0], 0.4, 1.0),
+                                                                        *images[1:]]))
 
 
 # --- render-and-compare in the rank step ------------------------------------------------------------------

@@ -394,31 +394,33 @@ def angles_of(out):
 
 def test_one_background_per_sensor_from_files_or_the_scene_folder(capsys, artifacts, scene, tmp_path):
     """Read against its own unit's no-contact image every sensor reads as no contact (one angle for all);
-    against one background for all, the units that differ from it do not."""
+    against one background for all, the units that differ from it do not. The units differ by a flat
+    colour only, which is what aligning the light (select.align_light) removes, so it is off here: the
+    test is about which no-contact image each sensor is read against."""
     from test_estimator import write_tiny_autoencoder
 
     write_tiny_autoencoder(artifacts, 500, "prim_box")
     folder = units_scene(scene, tmp_path / "units")
     common = ["--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts), "--json"]
     one = write_backgrounds(tmp_path, [FLAT])
-    code, out, err = run(capsys, *common, "--background", *one, "select.N=500")
+    code, out, err = run(capsys, *common, "--background", *one, "select.N=500", "select.align_light=false")
     assert code == 0, err
     assert np.ptp(angles_of(out)) > 1e-4
     own = write_backgrounds(tmp_path, UNIT_COLOURS)
-    code, out, err = run(capsys, *common, "--background", *own, "select.N=500")
+    code, out, err = run(capsys, *common, "--background", *own, "select.N=500", "select.align_light=false")
     assert code == 0, err
     assert np.ptp(angles_of(out)) < 1e-6
     by_files = angles_of(out)
 
     in_folder = units_scene(scene, tmp_path / "units_with_backgrounds", backgrounds_in_folder=range(3))
     common[3] = str(in_folder)
-    code, out, err = run(capsys, *common, "select.N=500")
+    code, out, err = run(capsys, *common, "select.N=500", "select.align_light=false")
     assert code == 0, err
     np.testing.assert_array_equal(angles_of(out), by_files)
     assert err == (f"note: {in_folder}: each sensor's image is read against its own no-contact image "
                    "background_<i>.png (i = 0..2)\n")
     # --background wins over the folder's
-    code, out, err = run(capsys, *common, "--background", *one, "select.N=500")
+    code, out, err = run(capsys, *common, "--background", *one, "select.N=500", "select.align_light=false")
     assert code == 0 and np.ptp(angles_of(out)) > 1e-4
     assert err == f"note: {in_folder}: --background given, the folder's background_<i>.png are not used\n"
 
@@ -480,3 +482,31 @@ def test_overlapping_sensors_are_one_error_line(capsys, artifacts, scene, tmp_pa
                          *BASELINE)
     assert code == 2 and out == "" and err.count("\n") == 1
     assert "sensors 0 and 2 overlap" in err
+
+
+def test_no_contact_images_estimated_from_the_scenes(capsys, artifacts, scene, tmp_path):
+    """--background from-scenes: each sensor's no-contact image is the pixel median of its images over the
+    scenes (each pressed somewhere else), said in a note; fewer than five scenes are an error line."""
+    from test_estimator import write_tiny_autoencoder
+
+    from tactile6d.commands.estimate import backgrounds_from_scenes
+
+    write_tiny_autoencoder(artifacts, 500, "prim_box")
+    folders = []
+    for k in range(5):
+        folder = units_scene(scene, tmp_path / f"pressed_{k}")
+        for i, colour in enumerate(UNIT_COLOURS):
+            image = np.full((320, 240, 3), colour, np.uint8)
+            image[60 * k:60 * k + 50, 40:200] = (150, 90, 120)  # this scene's press
+            write_tactile_image(folder / f"Image_heatmap_{i}.png", image)
+        folders.append(str(folder))
+    estimated, _ = backgrounds_from_scenes([Path(f) for f in folders])
+    np.testing.assert_array_equal(estimated, np.stack([np.full((320, 240, 3), c, np.uint8) for c in UNIT_COLOURS]))
+    common = ["--object", "prim_box", "--artifacts", str(artifacts), "--json", "--background", "from-scenes"]
+    code, out, err = run(capsys, *common, "--scene", *folders, "select.N=500")
+    assert code == 0, err
+    assert err.startswith("note: each sensor's no-contact image estimated from its images in the 5 scenes")
+    assert out.count("\n") == 5
+    code, out, err = run(capsys, *common, "--scene", *folders[:3], "select.N=500")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "--background from-scenes needs at least 5 scenes" in err

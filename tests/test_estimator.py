@@ -451,29 +451,39 @@ def three_units(world, data_dir, tmp_path_factory):
 
 
 def test_each_unit_read_against_its_own_background_reads_like_the_common_rendering(world, three_units):
-    e = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
-                                     background=three_units["common"])
+    def estimator(background, *overrides):
+        return est.Estimator.from_artifacts("prim_x", three_units["artifacts"],
+                                            compose_config(["select.N=200", *overrides]), background=background)
+
+    e = estimator(three_units["common"])
     T = world["T_world_sensors"]
     reference = e.estimate(T, three_units["over_common"])
     assert reference.contacts.from_patch.all()  # every press is read from its patch
     own = e.estimate(T, three_units["over_units"], backgrounds=three_units["units"])
-    # One background for all (the common one, which unit 1 has) misreads the units that differ from it.
-    wrong = e.estimate(T, three_units["over_units"])
+    # One background for all (the common one, which unit 1 has) misreads the units that differ from it, when
+    # their images are read as given (select.align_light=false).
+    as_given = estimator(three_units["common"], "select.align_light=false")
+    wrong = as_given.estimate(T, three_units["over_units"])
+    reference_as_given = as_given.estimate(T, three_units["over_common"])
     # The same imprints over other backgrounds, each read against its own, read like the reference: not to
     # the bit, as the dark pixels clip at 0 differently. Measured: contacts 0.15, 0, 0.03 mm and angles
     # 7e-4, 0, 1e-4 rad from the reference's; with the one background 6.6, 0, 2.5 mm and 2.3e-3, 0, 4.9e-3 rad.
     own_off = np.linalg.norm(own.contacts.points - reference.contacts.points, axis=1)
-    wrong_off = np.linalg.norm(wrong.contacts.points - reference.contacts.points, axis=1)
+    wrong_off = np.linalg.norm(wrong.contacts.points - reference_as_given.contacts.points, axis=1)
     assert own_off.max() < 3e-4 and wrong_off[0] > 2e-3 and wrong_off[2] > 1e-3
-    own_dh, wrong_dh = np.abs(own.angles - reference.angles), np.abs(wrong.angles - reference.angles)
+    own_dh, wrong_dh = np.abs(own.angles - reference.angles), np.abs(wrong.angles - reference_as_given.angles)
     assert own_dh.max() < 1e-3 and np.all(wrong_dh[[0, 2]] > 3 * own_dh[[0, 2]])
     assert own_dh[1] == wrong_dh[1] == 0.0  # unit 1's background is the common one
     dt, dr = pose_errors(own.best, reference.best)
     assert dt < 1e-3 and dr < 2.0  # measured 0.23 mm, 0.7 deg; with the one background 4 mm, 175 deg
-    assert pose_errors(wrong.best, reference.best)[0] > 2e-3
+    assert pose_errors(wrong.best, reference_as_given.best)[0] > 2e-3
+    # Aligning each image's light to the one background (the default) absorbs what tells these units apart,
+    # their channel gains and offsets: their contacts read like the reference's again.
+    aligned = e.estimate(T, three_units["over_units"])
+    assert aligned.light[0].applied and aligned.light[2].applied
+    assert np.linalg.norm(aligned.contacts.points - reference.contacts.points, axis=1).max() < 5e-4
     # The estimator built with the units' backgrounds reads the same without a per-call argument.
-    built = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
-                                         background=three_units["units"])
+    built = estimator(three_units["units"])
     np.testing.assert_array_equal(built.estimate(T, three_units["over_units"]).angles, own.angles)
 
 

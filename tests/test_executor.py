@@ -259,7 +259,8 @@ def test_ablation_through_dask_gives_the_same_metrics(dask_cluster, tiny_scenes,
     cfg.ablation.variants = {"paper": {"select": {"delta_d_rule": "paper"}, "rank": {"refine": False}},
                              "normals": {"select": {"normal_tol_deg": 20.0}, "optimize": {"normal_weight": 0.01}},
                              "paper_again": {"rank": {"refine": False}, "select": {"delta_d_rule": "paper"}}}
-    cfg.ablation.curves, cfg.ablation.only_on = ["normals"], {}
+    cfg.ablation.curves, cfg.ablation.only_on, cfg.ablation.variants_on = ["normals"], {}, {}
+    cfg.ablation.curves_on = ["tiny"]
     OmegaConf.save(cfg, tmp_path / "params.yaml")
     metrics = layout.metrics_file(tiny_scenes, "ablation_tiny")
     results = {}

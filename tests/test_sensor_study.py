@@ -73,7 +73,9 @@ def test_ablation_reports_each_variant_at_its_sensor_counts_and_sets(artifacts, 
                              "paper_again": {"rank": {"refine": False}, "select": {"delta_d_rule": "paper"}},
                              "elsewhere": {"select": {"N": 100}}}
     cfg.ablation.curves = ["paper"]
+    cfg.ablation.curves_on = ["tiny"]
     cfg.ablation.only_on = {"elsewhere": ["validation"], "normals": ["tiny", "validation"]}
+    cfg.ablation.variants_on = {"validation": ["paper"]}
     OmegaConf.save(cfg, tmp_path / "params.yaml")
     assert ablation.main(["--scene-set", "tiny", "--params", str(tmp_path / "params.yaml")]) == 0
     results = json.loads(layout.metrics_file(artifacts, "ablation_tiny").read_text())
@@ -93,9 +95,16 @@ def test_ablation_reports_each_variant_at_its_sensor_counts_and_sets(artifacts, 
 def test_ablation_names_of_curves_and_sets_must_be_variants():
     with pytest.raises(ConfigError, match=r"ablation.curves .*\['nope'\]"):
         ablation.sensor_counts(["paper", "default"], 3, ["nope"], ["paper", "default"])
-    with pytest.raises(ConfigError, match=r"ablation.only_on .*\['nope'\]"):
+    with pytest.raises(ConfigError, match=r"ablation.only_on or ablation.variants_on .*\[.nope.\]"):
         ablation.variants_on("tiny", ["paper"], {"nope": ["tiny"]})
     assert ablation.variants_on("offaxis", ["paper", "default"], {"paper": ["caddeo2023"]}) == ["default"]
+    # ablation.variants_on: a listed set runs its variants only, both filters apply, names are checked
+    names = ["paper", "paper_fast", "default"]
+    assert ablation.variants_on("variation", names, {}, {"variation": ["paper_fast", "default"]}) == ["paper_fast", "default"]
+    assert ablation.variants_on("validation", names, {}, {"variation": ["default"]}) == names
+    assert ablation.variants_on("variation", names, {"default": ["caddeo2023"]}, {"variation": ["default"]}) == []
+    with pytest.raises(ConfigError, match=r"ablation.variants_on .*\['nope'\]"):
+        ablation.variants_on("variation", names, {}, {"variation": ["nope"]})
     assert ablation.sensor_counts(["paper", "default"], 3, ["paper"], ["paper", "default"]) == {"paper": (1, 2, 3),
                                                                                                "default": (3,)}
     # a curve whose variant does not run on this set (ablation.only_on) is no error there

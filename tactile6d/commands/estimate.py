@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import layout
+from tactile6d import layout, photometric
 from tactile6d.config import CONF_DIR, compose_config
 from tactile6d.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.estimator import Estimate, Estimator
@@ -84,7 +84,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--json", action="store_true", help="print one JSON object per scene (JSON Lines)")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
                         help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
-                             "per sensor in sensor order; default: each scene's background_<i>.png, else "
+                             "per sensor in sensor order; 'from-scenes': each sensor's estimated from its images "
+                             f"in the scenes given (pixel median; at least {MIN_SCENES_FOR_BACKGROUND} scenes "
+                             "that touch in different places); default: each scene's background_<i>.png, else "
                              "render.background")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
@@ -262,10 +264,35 @@ def estimate_scene(scene: Path, name: str, cache: EstimatorCache) -> tuple[Estim
     estimator, load_seconds = cache.get(name)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnderdeterminedPoseWarning)
+        warnings.simplefilter("always", photometric.LightWarning)
         result = estimator.estimate(T_world_sensors, images, backgrounds)
     for line in warnings_to_lines(scene, caught):
         write(line, sys.stderr)
     return result, load_seconds
+
+
+FROM_SCENES = "from-scenes"  # --background's word for "estimate each sensor's from the scenes' images"
+MIN_SCENES_FOR_BACKGROUND = 5
+
+
+def backgrounds_from_scenes(scenes: list[Path]) -> tuple[np.ndarray, str]:
+    """Each sensor's no-contact image (L, 320, 240, 3) estimated from its images in ``scenes``
+    (``photometric.background_from_images``: the pixel median), for units whose own was never recorded,
+    and a note for stderr that says so. InputError for fewer than ``MIN_SCENES_FOR_BACKGROUND`` scenes or
+    scenes with different sensor counts."""
+    images = [read_scene_dir(scene)[1] for scene in scenes]
+    counts = sorted({len(i) for i in images})
+    if len(counts) > 1:
+        raise InputError(f"--background {FROM_SCENES}: the scenes have different sensor counts {counts}; each "
+                         "sensor's no-contact image is estimated from the same sensor in every scene")
+    per_sensor = [photometric.background_from_images(np.stack([i[k] for i in images]), MIN_SCENES_FOR_BACKGROUND)
+                  for k in range(counts[0])]
+    if per_sensor[0] is None:
+        raise InputError(f"--background {FROM_SCENES} needs at least {MIN_SCENES_FOR_BACKGROUND} scenes, touching in "
+                         f"different places, to estimate the no-contact images; got {len(scenes)}")
+    return np.stack(per_sensor), (f"note: each sensor's no-contact image estimated from its images in the "
+                                  f"{len(scenes)} scenes (pixel median): record them with nothing touching the "
+                                  "sensors for better readings")
 
 
 def scene_backgrounds(scene: Path, n_sensors: int, given: bool) -> tuple[np.ndarray | None, str | None]:
@@ -361,7 +388,11 @@ def main(argv: list[str]) -> int:
     if args.object != AUTO:
         known.check(args.object)
     scenes = collect_scenes(args)
-    background = read_background_images(args.background) if args.background else None
+    if args.background == [FROM_SCENES]:
+        background, note = backgrounds_from_scenes(scenes)
+        write(note, sys.stderr)
+    else:
+        background = read_background_images(args.background) if args.background else None
     cache = EstimatorCache(artifacts, cfg, background)
 
     if len(scenes) == 1 and args.scenes_root is None:

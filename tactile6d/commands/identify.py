@@ -37,6 +37,7 @@ from tactile6d.errors import InputError
 from tactile6d.geometry import pose_to_line
 from tactile6d.identifier import Identification, Identifier
 from tactile6d.inputs import UnderdeterminedPoseWarning
+from tactile6d.photometric import LightWarning
 from tactile6d.io import read_background_images, read_scene_dir
 from tactile6d.optimize import use_cpu_devices_for
 
@@ -109,6 +110,7 @@ def main(argv: list[str]) -> int:
     with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors) as identifier:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UnderdeterminedPoseWarning)
+            warnings.simplefilter("always", LightWarning)
             result = identifier.identify(T_world_sensors, images, backgrounds)
     for line in warnings_to_lines(Path(args.scene), caught):
         print(line, file=sys.stderr)

@@ -8,7 +8,9 @@ contacts are the paper's landmarks, or each image's contact patch (``select.cont
 ``tactile6d.contacts``). With ``select.centre_images`` an image whose contact was read from its patch
 is moved so that contact sits at the image centre before its angle is read: every database image was
 rendered with the gel's apex on the surface, so its contact is at the centre, and the angle of the same
-press seen 4 mm off-centre differs by more than ``select.delta_h`` (docs/contact_patch.md).
+press seen 4 mm off-centre differs by more than ``select.delta_h`` (docs/contact_patch.md). Before any
+of that, with ``select.align_light``, each image is brought to its no-contact image's light
+(``align_light``, ``tactile6d.photometric``).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import layout
+from tactile6d import layout, photometric
 from tactile6d.autoencoder import encode, latent_angles, load_checkpoint
 from tactile6d.contacts import (
     Contacts,
@@ -117,6 +119,18 @@ def centre_images(images: np.ndarray, no_contact: np.ndarray, contacts: Contacts
         point = transform_points(invert_pose(T_world_sensors[i]), contacts.points[i][None])[0]
         out[i] = centre_contact(images[i], sensor_background(no_contact, i), point)
     return out
+
+
+def align_light(settings: SelectSettings, images: np.ndarray | None, no_contact: np.ndarray | None
+                ) -> tuple[np.ndarray | None, list[photometric.LightFit] | None]:
+    """The images (L, 320, 240, 3) uint8 RGB as every later reading sees them: with
+    ``settings.aligns_light`` and no-contact images (as for ``centre_images``), each brought to its own
+    sensor's no-contact image's light (``photometric.align_images``) -> (images, their ``LightFit``s);
+    otherwise (images as given, None)."""
+    if images is None or no_contact is None or not settings.aligns_light:
+        return images, None
+    per_sensor = no_contact if no_contact.ndim == 4 else np.broadcast_to(no_contact, np.shape(images))
+    return photometric.align_images(images, per_sensor)
 
 
 def sensor_background(no_contact: np.ndarray, i: int) -> np.ndarray:

@@ -71,6 +71,7 @@ def rank(
             partial(collision.poses_to_box_depth_bounds, pieces, T_world_sensor=T_world_sensors),
         ),
         batch=int(settings.batch),
+        allowance=settings.penetration_allowance,
     )
     if not (settings.refine or compare):
         return first
@@ -88,7 +89,7 @@ def rank(
         new_losses = distance + w * angle
         depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
         n_scored += len(candidates)
-    scores = new_losses + depths.max(axis=1)
+    scores = new_losses + ranking.penetration_cost(depths, settings.penetration_allowance)
     if compare:
         scores = scores + settings.agreement_weight * agreement_cost(mesh, candidates, T_world_sensors, contacts,
                                                                      settings)

@@ -1,0 +1,76 @@
+"""tactile6d.perturb: a clean scene set as a real set-up gives it (drifted light, kinematic error), and the
+scene artifact that carries each sensor's own no-contact image."""
+
+import numpy as np
+import pytest
+
+from tactile6d import perturb, photometric
+from tactile6d.geometry import invert_pose, make_pose, rotmat_to_rotvec
+from tactile6d.io import read_artifact, write_artifact
+from tactile6d.scenes import SceneSet, scene_set_from_artifact
+
+S, L, H, W = 8, 3, 320, 240
+
+
+def clean_set() -> tuple[SceneSet, np.ndarray]:
+    """8 scenes of 3 sensors pressing a square into a colourful background, and that background."""
+    rng = np.random.default_rng(0)
+    rows, cols = np.mgrid[0:H, 0:W]
+    background = np.stack([60 + cols // 3, 70 + rows // 4, 170 - (rows + cols) // 5], axis=-1).astype(np.uint8)
+    images = np.broadcast_to(background, (S, L, H, W, 3)).copy()
+    images[:, :, 100:200, 80:160] += 30  # a press
+    T_sensors = np.broadcast_to(make_pose(np.eye(3), [0.1, 0.0, 0.2]), (S, L, 4, 4)).copy()
+    T_sensors[..., :3, 3] += rng.normal(0, 0.03, (S, L, 3))
+    return SceneSet(np.array([f"s{i}" for i in range(S)]), np.array(["box"] * S),
+                    np.broadcast_to(np.eye(4), (S, 4, 4)).copy(), T_sensors, images,
+                    rng.normal(size=(S, L, 3)), rng.normal(size=(S, L, 3)), np.zeros((S, L), np.int64)), background
+
+
+def test_drifted_light_keeps_the_truth_and_gives_each_sensor_the_no_contact_image_a_user_has():
+    clean, background = clean_set()
+    out = perturb.drift_light(clean, background, 0.1, (0.83, 1.2), 2.0, 0.5, np.random.default_rng(1))
+    for key in ("names", "objects", "T_world_object", "T_world_sensors", "contact_points", "contact_normals"):
+        assert np.array_equal(getattr(out, key), getattr(clean, key))
+    gains, gammas, again = out.extra["light_gain"], out.extra["light_gamma"], out.extra["background_rerecorded"]
+    assert gains.shape == gammas.shape == (S, L, 3) and again.shape == (S,)
+    assert np.all(np.abs(gains - 1) <= 0.1) and np.all((gammas >= 0.83) & (gammas <= 1.2))
+    assert 0 < again.sum() < S  # with half re-recorded, some of 8 scenes are and some are not
+    for s in range(S):
+        for i in range(L):
+            expected = photometric.drift_light(clean.images[s, i], gains[s, i], gammas[s, i])
+            assert np.abs(out.images[s, i].astype(int) - expected).mean() < 2.5  # plus noise of sigma 2
+            if again[s]:  # recorded again under the drifted light
+                drifted = photometric.drift_light(background, gains[s, i], gammas[s, i]).astype(int)
+                assert np.abs(out.backgrounds[s, i].astype(int) - drifted).mean() < 2.5
+            else:  # the no-contact image of before the drift
+                assert np.array_equal(out.backgrounds[s, i], background)
+
+
+def test_kinematic_error_moves_each_sensor_pose_in_its_own_frame_by_the_drawn_error():
+    clean, _ = clean_set()
+    out = perturb.perturb_sensor_poses(clean, 0.0015, np.radians(1.5), np.random.default_rng(2))
+    assert np.array_equal(out.images, clean.images)
+    error = invert_pose(clean.T_world_sensors) @ out.T_world_sensors  # (S, L, 4, 4), sensor frame
+    assert np.allclose(error[..., :3, 3], out.extra["pose_error_translation"])
+    assert np.allclose(rotmat_to_rotvec(error[..., :3, :3]), out.extra["pose_error_rotvec"])
+    assert 0.0005 < np.std(out.extra["pose_error_translation"]) < 0.003
+
+
+def test_a_scene_set_with_its_own_backgrounds_round_trips_through_its_artifact(tmp_path):
+    clean, background = clean_set()
+    out = perturb.drift_light(clean, background, 0.1, (0.83, 1.2), 2.0, 0.5, np.random.default_rng(3))
+    path = write_artifact(tmp_path / "variation.h5", "scenes", out.as_datasets())
+    back = scene_set_from_artifact(read_artifact(path, "scenes"))
+    assert np.array_equal(back.backgrounds, out.backgrounds) and np.array_equal(back.images, out.images)
+    assert np.array_equal(back.extra["light_gain"], out.extra["light_gain"])
+    assert np.array_equal(back.backgrounds_of(2), out.backgrounds[2])
+    plain = scene_set_from_artifact(read_artifact(write_artifact(tmp_path / "plain.h5", "scenes", clean.as_datasets()),
+                                                  "scenes"))
+    assert plain.backgrounds is None and plain.backgrounds_of(0) is None and plain.extra == {}
+
+
+@pytest.mark.parametrize("noise", [0.0, 3.0])
+def test_camera_noise_has_its_sigma(noise):
+    image = np.full((200, 200, 3), 128, np.uint8)
+    out = perturb.add_camera_noise(image, noise, np.random.default_rng(4)).astype(float)
+    assert abs(out.std() - noise) < 0.1
