@@ -29,7 +29,10 @@ def ycb_object_names() -> list[str]:
 
 
 def load_source(name: str, store: DataStore, scale: float, n_metric_points: int, rng: np.random.Generator):
-    """The raw mesh and the metric points of an object -> (mesh, metric_points (K, 3), source description)."""
+    """The raw mesh and the metric points of an object -> (mesh, metric_points (K, 3), source description).
+
+    A YCB mesh is described by its path relative to the data directory, never by where that directory
+    lies on this machine: the object file must have the same bytes wherever the data is (dvc.lock's md5)."""
     if meshes.is_primitive(name):
         mesh = meshes.make_primitive(name)
         mesh.apply_scale(scale)
@@ -38,10 +41,10 @@ def load_source(name: str, store: DataStore, scale: float, n_metric_points: int,
     if name not in ycb_object_names():
         known = ", ".join(list(ycb_object_names()) + list(meshes.PRIMITIVE_NAMES))
         raise ConfigError(f"unknown object {name!r}; known objects: {known}")
-    mesh_path = store.path(f"ycb/{name}/textured_simple.obj")
-    mesh = meshes.load_mesh_file(mesh_path, scale=scale)
+    mesh_rel = f"ycb/{name}/textured_simple.obj"
+    mesh = meshes.load_mesh_file(store.path(mesh_rel), scale=scale)
     points = np.loadtxt(store.path(f"ycb/{name}/points.xyz"), dtype=np.float64).reshape(-1, 3) * scale
-    return mesh, points, str(mesh_path)
+    return mesh, points, f"data directory: {mesh_rel}"
 
 
 def collision_pieces(name: str, mesh, cfg, store: DataStore) -> meshes.ConvexPieces:
