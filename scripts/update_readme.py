@@ -28,6 +28,7 @@ TIME_START, TIME_END = "<!-- reproduce-time:start -->", "<!-- reproduce-time:end
 HEADLINE = ("The paper's 40 triplets (test set), L = 3",
             "Off-axis scenes (generated; sensors tilted and touching off the gel's centre)",
             "Real set-ups: light that drifted, sensor poses off (generated)",
+            "Confidence: can an estimate be trusted?",
             "Which object: identification over the library",
             "Stage times")
 

@@ -1,7 +1,9 @@
 """Stage evaluate: both methods' metrics on one scene set (docs/design.md, The metrics; the paper's Table I).
 
-Reads ``artifacts/scenes/<set>.h5``, ``artifacts/runs/<set>/{ours,baseline}/ranked.h5`` and the objects'
-meshes and metric points, and the ``evaluate`` config section (the image-consistent contact metric's
+Reads ``artifacts/scenes/<set>.h5``, ``artifacts/runs/<set>/{ours,baseline}/ranked.h5``, the objects'
+meshes, metric points and surface points, the confidence model (``artifacts/confidence/model.json``,
+stage calibrate_confidence: how well ours' confidence tells right from wrong on this set), and the
+``evaluate`` config section (the image-consistent contact metric's
 ray-grid step and IoU threshold). Writes ``artifacts/metrics/<set>.json`` (DVC metrics: method -> metric,
 averages over objects), ``artifacts/eval/<set>.json`` (per object and per scene) and
 ``artifacts/eval/<set>_table.md`` (Table I layout).
@@ -16,10 +18,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import evaluation, gel_contact, layout
+from tactile6d import confidence, evaluation, gel_contact, layout
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, write_json, write_text
+from tactile6d.object_artifacts import load_surface_points
 from tactile6d.render import mesh_arrays
 from tactile6d.stage_clock import timed
 
@@ -73,6 +76,27 @@ def timing_summary(ranked) -> dict[str, float]:
     return out
 
 
+def confidence_summary(ranked, adi_best: np.ndarray, model: confidence.ConfidenceModel,
+                       artifacts) -> tuple[dict, list[dict], list[float]]:
+    """How the confidence of each ranked scene tells "ADI of #1 < 1 cm" from not: headline metrics
+    (AUROC, Brier score, mean confidence, flagged ambiguous) and the per-scene probabilities (NaN where
+    nothing was ranked). adi_best (S,) m."""
+    points = {o: confidence.spread_points(load_surface_points(artifacts, o)) for o in set(ranked["objects"].tolist())}
+    p, n_distinct = np.full(len(adi_best), np.nan), np.zeros(len(adi_best), dtype=np.int64)
+    for s, obj in enumerate(ranked["objects"].tolist()):
+        n = int(ranked["n_poses"][s])
+        if n:
+            p[s], distinct = confidence.assess(model, points[obj], ranked["poses"][s][:n], ranked["scores"][s][:n])
+            n_distinct[s] = len(distinct)
+    ok = ~np.isnan(p)
+    success = adi_best[ok] < confidence.SUCCESS_ADI
+    return {"confidence_auroc_adi1cm": confidence.auroc(p[ok], success),
+            "confidence_brier": confidence.brier(p[ok], success),
+            "confidence_mean": float(np.mean(p[ok])),
+            "ambiguous_fraction": float(np.mean(n_distinct[ok] > 1)),
+            "n_wrong_adi1cm": int((~success).sum())}, confidence.reliability(p[ok], success), p.tolist()
+
+
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0],
                                  add_arguments=lambda p: p.add_argument("--scene-set", required=True))
@@ -90,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         warnings.warn(f"{args.scene_set}: {len(untouched)} scene(s) with a sensor that the true pose does not "
                       f"press, e.g. {', '.join(untouched[:5])}", stacklevel=1)
 
+    model = confidence.ConfidenceModel.from_json(layout.confidence_model_file(artifacts).read_text())
     summary, details, headline = {}, {}, {}
     for method in METHODS:
         ranked = read_artifact(layout.run_dir(artifacts, args.scene_set, method) / "ranked.h5", "ranked")
@@ -104,10 +129,15 @@ def main(argv: list[str] | None = None) -> int:
                           for s, name in enumerate(scenes["names"].tolist())},
             "failure": dict(zip(scenes["names"].tolist(), ranked["failure"].tolist())),
         }
+        if method == "ours":  # the confidence is fitted on ours' estimates
+            figures, bins, probabilities = confidence_summary(ranked, errors["adi"][:, 0], model, artifacts)
+            headline[method].update(figures)
+            details[method]["confidence"] = {"reliability": bins,
+                                             "per_scene": dict(zip(scenes["names"].tolist(), probabilities))}
         print(f"{args.scene_set}/{method}: " + ", ".join(
             f"{key} {headline[method].get(key, float('nan')):.2f}"
             for key in ("pos_err_cm_top1", "adi_auc_paper_top1", "adi_auc_rot_top1", "contact_acc_top1",
-                        "contact_acc_image_top1", "time_s_median")))
+                        "contact_acc_image_top1", "confidence_auroc_adi1cm", "time_s_median")))
 
     write_json(layout.metrics_file(artifacts, args.scene_set), headline)
     eval_dir = Path(artifacts) / "eval"

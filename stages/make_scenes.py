@@ -1,6 +1,7 @@
 """Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported; ``validation``, ``offaxis``,
-``variation``, ``kinematic`` and ``calibration`` generated: the last from ``identify.calibration_scenes``,
-the scenes stage calibrate_identify fits on). A generated set's section may add what a real set-up does
+``variation``, ``kinematic``, ``calibration`` and ``confidence`` generated: the last two from
+``identify.calibration_scenes`` and ``confidence.scenes``, the scenes the stages calibrate_identify and
+calibrate_confidence fit on). A generated set's section may add what a real set-up does
 to its images or sensor poses (``light``, ``kinematics``: ``tactile6d.perturb``), drawn after the clean
 set from a generator of its own, so the set's objects, poses and contacts are those of its clean draw.
 
@@ -19,14 +20,17 @@ import trimesh
 from tqdm import tqdm
 
 from tactile6d import contact, layout, perturb, scenes
-from tactile6d.config import parse_stage_args, section_to_dict
+from tactile6d.config import parse_stage_args, require, section_to_dict
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import exit_on_error
 from tactile6d.io import read_artifact, read_scene_dir, write_artifact
 from tactile6d.render import DigitRenderer, load_background_bgr
 from tactile6d.stage_clock import timed
 
-SCENE_SETS = ("caddeo2023", "validation", "offaxis", "variation", "kinematic", "calibration")
+SCENE_SETS = ("caddeo2023", "validation", "offaxis", "variation", "kinematic", "calibration", "confidence")
+# The generated sets that fit something rather than measure it, with the config section each is drawn
+# from: kept out of ``scenes`` so that editing one re-makes no evaluated set.
+FIT_SETS = {"calibration": "identify.calibration_scenes", "confidence": "confidence.scenes"}
 
 
 def load_mesh(artifacts_dir: str, name: str) -> trimesh.Trimesh:
@@ -61,10 +65,11 @@ def import_caddeo2023(object_names: list[str], store: DataStore, artifacts_dir: 
 
 
 def scene_spec(cfg, scene_set: str):
-    """The config section a generated set is drawn from: ``identify.calibration_scenes`` for the
-    calibration set (an identification concern, kept out of ``scenes`` so that editing it re-makes no
-    evaluated set), ``scenes.<scene_set>`` otherwise."""
-    return cfg.identify.calibration_scenes if scene_set == "calibration" else cfg.scenes[scene_set]
+    """The config section a generated set is drawn from: ``FIT_SETS``'s for the sets that fit the
+    identification weights or the confidence, ``scenes.<scene_set>`` otherwise."""
+    if scene_set in FIT_SETS:
+        return require(cfg, FIT_SETS[scene_set])
+    return cfg.scenes[scene_set]
 
 
 def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
@@ -132,8 +137,8 @@ def main(argv: list[str] | None = None) -> int:
         out.as_datasets(),
         attrs={"scene_set": scene_set, "contact_type_counts": counts.tolist()},
         config={"scenes": section_to_dict(cfg, "scenes"), "render": section_to_dict(cfg, "render"),
-                **({"identify.calibration_scenes": section_to_dict(cfg, "identify.calibration_scenes")}
-                   if scene_set == "calibration" else {}),
+                **({FIT_SETS[scene_set]: section_to_dict(cfg, FIT_SETS[scene_set])}
+                   if scene_set in FIT_SETS else {}),
                 "objects": section_to_dict(cfg, "objects")},
         compression="lzf",
     )

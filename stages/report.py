@@ -1,6 +1,7 @@
 """Stage report: the results page and figures, generated from the metrics (never typed by hand).
 
-Reads the metrics and tables of evaluate, sensor_study and ae_quality, and, for the figures, the
+Reads the metrics and tables of evaluate, sensor_study, ae_quality and calibrate_confidence (with the
+reliability bins in evaluate's per-set details), and, for the figures, the
 caddeo2023 scenes, our ranked poses and tuples, and the objects' surfaces and latents; for the
 stage-time table, every other stage's time record (``artifacts/times/stages/``, ``tactile6d.stage_clock``). Writes
 ``reports/results.md`` and ``reports/figures/*.png`` (tracked by git, so the README can show them;
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import layout, stage_clock, viz
+from tactile6d import confidence, layout, stage_clock, viz
 from tactile6d.config import parse_stage_args
 from tactile6d.errors import exit_on_error
 from tactile6d.evaluation import PAPER_TABLE_I, ablation_markdown
@@ -105,6 +106,47 @@ def real_setups_table(artifacts: str) -> str:
                      f"({_cell(paper.get('pos_err_cm_top1_median'))}) | {_cell(paper.get('adi_auc_paper_top1'))} "
                      f"| {target} | {met} |")
     return "\n".join(lines)
+
+
+# The sets on which the confidence (stage calibrate_confidence) is judged, in the table's order (after the
+# fit set's own scenes).
+CONFIDENCE_SETS = ("validation", "offaxis", "variation", "kinematic", "caddeo2023")
+
+
+def confidence_section(artifacts: str, figures: Path) -> list[str]:
+    """How well ours' confidence tells a best pose within 1 cm ADI from one that is not, per scene set (the
+    fit set's own scenes first): AUROC, Brier score, mean confidence against the share right, the share
+    flagged ambiguous; and the reliability diagram (``figures/reliability.png``)."""
+    fit = load_json(layout.metrics_file(artifacts, "confidence"))
+    if not fit:
+        return ["(not run)", ""]
+    lines = ["| scene set | scenes | wrong (ADI #1 >= 1 cm) | AUROC | Brier score | mean confidence | share right "
+             "| flagged ambiguous |", "|---|---|---|---|---|---|---|---|"]
+    lines.append(f"| confidence (its own fit set) | {fit['n_scenes']} | {fit['n_scenes'] - fit['n_right']} | "
+                 f"{_cell(fit['auroc'])} | {fit['brier']:.3f} | - | {fit['n_right'] / fit['n_scenes']:.2f} | - |")
+    bins = {f"its own fit set ({fit['n_scenes']})": fit["reliability"]}
+    pooled = {"generated": ([], []), "caddeo2023": ([], [])}  # (probabilities, right) of the sets' scenes
+    for scene_set in CONFIDENCE_SETS:
+        m = load_json(layout.metrics_file(artifacts, scene_set)).get("ours", {})
+        if "confidence_auroc_adi1cm" not in m:
+            continue
+        n, wrong = m["n_scenes"] - m.get("n_failed", 0), m["n_wrong_adi1cm"]
+        auroc = _cell(m["confidence_auroc_adi1cm"]) if wrong else "undefined (none wrong)"
+        lines.append(f"| {scene_set} | {n} | {wrong} | {auroc} | {m['confidence_brier']:.3f} | "
+                     f"{m['confidence_mean']:.2f} | {(n - wrong) / n:.2f} | {100 * m['ambiguous_fraction']:.0f} % |")
+        ours = load_json(Path(artifacts) / "eval" / f"{scene_set}.json").get("ours", {})
+        probabilities, right = pooled["caddeo2023" if scene_set == "caddeo2023" else "generated"]
+        for name, p in ours.get("confidence", {}).get("per_scene", {}).items():
+            if p == p:  # NaN: nothing ranked
+                probabilities.append(p)
+                right.append(ours["per_scene"][name]["adi"][0] < confidence.SUCCESS_ADI)
+    for label, (probabilities, right) in pooled.items():
+        if probabilities:
+            name = "generated sets pooled" if label == "generated" else label
+            bins[f"{name} ({len(probabilities)})"] = confidence.reliability(np.array(probabilities), np.array(right))
+    viz.reliability_figure(bins, "Confidence: predicted against observed").savefig(figures / "reliability.png",
+                                                                                    dpi=100)
+    return ["\n".join(lines), "", "![reliability diagram](figures/reliability.png)", ""]
 
 
 def figure_scenes(artifacts: str, out: Path) -> list[str]:
@@ -320,6 +362,21 @@ def main(argv: list[str] | None = None) -> int:
         "",
         real_setups_table(artifacts),
         "",
+        "### Confidence: can an estimate be trusted?",
+        "",
+        ("Each estimate's confidence is the probability that its best pose is within 1 cm ADI of the truth "
+         "(`tactile6d/confidence.py`): a logistic regression on how much worse the best rival pose scores and "
+         "how far the top poses spread, fitted by stage `calibrate_confidence` on "
+         f"{int(cfg.confidence.scenes.scenes_per_object) * len(objects)} scenes of its own (conf/confidence: "
+         "tilted, off-centre, drifted light, sensor poses off by "
+         f"{float(cfg.confidence.scenes.kinematics.sigma_mm):g} mm and "
+         f"{float(cfg.confidence.scenes.kinematics.sigma_deg):g} deg), never on the sets below. AUROC: the "
+         "probability that a right estimate gets a higher confidence than a wrong one; with few wrong estimates "
+         "in a set of 40 it moves by 1 / (number wrong) for each one misjudged. An estimate is flagged "
+         f"ambiguous when a pose farther than {100 * confidence.RIVAL_DISTANCE:g} cm from the best scores within "
+         f"{100 * float(cfg.confidence.ambiguity_ratio):g} % of it."),
+        "",
+        *confidence_section(artifacts, figures),
         "### Which object: identification over the library",
         "",
         *identification_section(artifacts, figures, int(cfg.identify.workers)),

@@ -4,6 +4,10 @@
 optimize, rank); ``Estimator.from_artifacts`` loads them from an artifacts directory (no DVC needed), the
 plain constructor takes arrays (tests, robots with their own storage). ``Estimate`` is the result.
 
+Confidence: with a calibrated ``confidence.ConfidenceModel`` (stage calibrate_confidence), each estimate
+also carries the probability that its best pose is within 1 cm ADI of the truth and the ranked poses
+that explain the contacts about equally well (``Estimate.confidence``, ``Estimate.distinct``).
+
 Randomness: every call draws from fresh generators seeded by ``select.seed`` (used only when L = 1) and
 ``optimize.seed`` (each tuple's random rotation), so the same input always gives the same estimate.
 
@@ -19,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import collision, layout, photometric, ranking
+from tactile6d import collision, confidence, layout, photometric, ranking
 from tactile6d import optimize as optimization
 from tactile6d.config import compose_config
 from tactile6d.contact import sample_surface
 from tactile6d.contacts import Contacts
-from tactile6d.errors import InputError
+from tactile6d.errors import ArtifactError, InputError
 from tactile6d.inputs import (
     backgrounds_per_sensor,
     check_backgrounds,
@@ -57,6 +61,11 @@ class Estimate:
     selection: the selection diagnostics; n_hypotheses: poses ranked; seconds: wall-clock time per step
     (encode, select, optimize, rank) and in total; light: how each image's light differed from its
     no-contact image's (``photometric.LightFit``, sensor order), None when the images were read as given.
+
+    confidence: P(ADI of the best pose < 1 cm) from the estimator's ``confidence.ConfidenceModel``, a
+    float in [0, 1]; distinct (D,) int64, D >= 1: indices into ``poses`` of the poses that explain the
+    contacts about equally well (``confidence.distinct_poses``), 0 (the best) first. Both None when the
+    estimator has no confidence model.
     """
 
     poses: np.ndarray
@@ -69,11 +78,19 @@ class Estimate:
     n_hypotheses: int
     seconds: dict[str, float] = field(default_factory=dict)
     light: list[photometric.LightFit] | None = None
+    confidence: float | None = None
+    distinct: np.ndarray | None = None
 
     @property
     def best(self) -> np.ndarray:
         """The best-ranked pose (4, 4)."""
         return self.poses[0]
+
+    @property
+    def ambiguous(self) -> bool:
+        """Whether poses other than the best explain the contacts about equally well (False without a
+        confidence model): the best pose may then be the wrong one."""
+        return self.distinct is not None and len(self.distinct) > 1
 
     def to_dict(self) -> dict:
         """JSON-ready summary: poses as nested lists, diagnostics as numbers."""
@@ -100,6 +117,12 @@ class Estimate:
             },
             "n_hypotheses": self.n_hypotheses,
             "light": None if self.light is None else [fit.to_dict() for fit in self.light],
+            "confidence": self.confidence,
+            "ambiguous": self.ambiguous,
+            "distinct_poses": [
+                {"rank": int(i), "pose": self.poses[i].tolist(), "score": float(self.scores[i])}
+                for i in ([] if self.distinct is None else self.distinct)
+            ],
         }
 
 
@@ -116,7 +139,9 @@ class Estimator:
     no_contact (320, 240, 3) uint8 RGB, the sensors' no-contact image, or (L, 320, 240, 3) each sensor's
     own in sensor order (``estimate`` may pass others per call), and patch_model, the contact-patch
     calibration (``patch.PatchModel``), needed by ``select.contacts=patch``; mesh: the object
-    (``trimesh.Trimesh``), needed by ``rank.agreement_weight`` > 0 (render-and-compare).
+    (``trimesh.Trimesh``), needed by ``rank.agreement_weight`` > 0 (render-and-compare);
+    confidence_model: the calibrated confidence (``confidence.ConfidenceModel``), without which estimates
+    carry no confidence.
 
     The ``gd`` solver splits its batch over JAX's CPU devices, a process-wide setting that must be made
     before JAX first runs: a program that uses it calls ``optimize.use_cpu_devices_for(solver,
@@ -135,6 +160,7 @@ class Estimator:
         no_contact: np.ndarray | None = None,
         patch_model: PatchModel | None = None,
         mesh=None,
+        confidence_model: confidence.ConfidenceModel | None = None,
     ):
         self.settings = settings if settings is not None else Settings.from_cfg(_default_cfg())
         self.points = np.asarray(points, dtype=np.float64)
@@ -170,6 +196,9 @@ class Estimator:
         if not isinstance(pieces, collision.ConvexPieces):
             pieces = collision.vertices_to_pieces(list(pieces))
         self.penetration_model = collision.PenetrationModel(pieces)
+        self.confidence_model = confidence_model
+        # The database points stand for the object in the distances between ranked poses.
+        self.spread_points = confidence.spread_points(self.points)
 
     @classmethod
     def from_artifacts(
@@ -186,7 +215,8 @@ class Estimator:
         (default: conf/ with no overrides). ArtifactError names a missing file and the command that
         makes it. objects_dir: where the object's own artifacts live, if not in artifacts_dir (an
         identification library's distractors: ``layout.distractors_dir(artifacts_dir)``); the
-        autoencoder and the patch calibration always come from artifacts_dir.
+        autoencoder, the patch calibration and the confidence model always come from artifacts_dir. The
+        confidence model is optional (``load_confidence_model``): without it estimates carry no confidence.
 
         background: the no-contact image (320, 240, 3) uint8 RGB of the sensors whose images will be
         estimated, or (L, 320, 240, 3) one per sensor in sensor order (a hand's units differ); the encoder
@@ -213,13 +243,15 @@ class Estimator:
         normals = load_surface_normals(own, object_name) if needs_normals(settings) else None
         mesh = rank_step.load_mesh(own, object_name) if settings.rank.rescores else None
         surface = sample_surface(mesh) if settings.rank.refine else None
-        return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh)
+        return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh,
+                   load_confidence_model(artifacts_dir))
 
     def with_settings(self, settings: Settings) -> Estimator:
         """The same object's estimator with other select/optimize/rank settings, sharing every array
         (the same checks as the constructor: InputError when the new settings need what this one lacks)."""
         return Estimator(self.points, self.penetration_model.pieces, self.db_angles, self.encoder, settings,
-                         self.normals, self.surface, self.no_contact, self.patch_model, self.mesh)
+                         self.normals, self.surface, self.no_contact, self.patch_model, self.mesh,
+                         self.confidence_model)
 
     # Each step is public so that a caller can run, time or inspect it alone.
 
@@ -335,7 +367,8 @@ class Estimator:
     def estimate_encoded(self, T_world_sensors, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
         """The ranked poses from what the images say, already read: the sensors' contacts (as ``contacts``
         returns) and the images' latent angles (L,) rad (``encode``; None for the baseline). Runs select,
-        optimize and rank; ``seconds`` has those steps and their total."""
+        optimize and rank, then the confidence (with a confidence model); ``seconds`` has those steps and
+        their total (the confidence counted in rank's)."""
         start = time.perf_counter()
         T = check_sensor_poses(T_world_sensors)
         seconds = {}
@@ -349,6 +382,10 @@ class Estimator:
 
         t0 = time.perf_counter()
         ranked = self.rank(T, hypotheses.poses, hypotheses.losses, contacts)
+        probability = distinct = None
+        if self.confidence_model is not None and len(ranked.poses) > 0:
+            probability, distinct = confidence.assess(self.confidence_model, self.spread_points,
+                                                      ranked.poses, ranked.scores)
         seconds["rank"] = time.perf_counter() - t0
         seconds["total"] = time.perf_counter() - start
         return Estimate(
@@ -361,7 +398,22 @@ class Estimator:
             selection=chosen,
             n_hypotheses=int(hypotheses.poses.shape[0]),
             seconds=seconds,
+            confidence=probability,
+            distinct=distinct,
         )
+
+
+def load_confidence_model(artifacts_dir: str | Path) -> confidence.ConfidenceModel | None:
+    """The confidence model of ``layout.confidence_model_file(artifacts_dir)``; None when the file is not
+    there (the pipeline has not calibrated one yet: estimates then carry no confidence). ArtifactError
+    for a model on other features than this code computes, or a file that is not a model."""
+    path = layout.confidence_model_file(artifacts_dir)
+    if not path.exists():
+        return None
+    try:
+        return confidence.ConfidenceModel.from_json(path.read_text())
+    except (ValueError, TypeError) as exc:  # other features or broken JSON; TypeError: missing or unknown fields
+        raise ArtifactError(f"confidence model {path}: {exc} (run `dvc repro calibrate_confidence`)") from exc
 
 
 def _default_cfg():

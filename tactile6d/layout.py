@@ -78,3 +78,8 @@ def metrics_file(artifacts_dir: str | Path, name: str) -> Path:
 def identify_calibration_file(artifacts_dir: str | Path) -> Path:
     """The identification score's weights fitted on the validation scenes (stage calibrate_identify)."""
     return Path(artifacts_dir) / "identify" / "calibration.json"
+
+
+def confidence_model_file(artifacts_dir: str | Path) -> Path:
+    """The confidence's logistic model (stage calibrate_confidence; ``confidence.ConfidenceModel``)."""
+    return Path(artifacts_dir) / "confidence" / "model.json"

@@ -159,3 +159,26 @@ def confusion_figure(matrix: np.ndarray, names: list[str], title: str):
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def reliability_figure(bins_by_set: dict[str, list[dict]], title: str):
+    """Reliability diagram: per named group of scenes (``confidence.reliability``'s bins), the observed share of right
+    estimates against the mean predicted probability in each bin, marker area by the bin's count; a
+    calibrated confidence lies on the diagonal."""
+    fig, ax = plt.subplots(figsize=(4.6, 4.2))
+    ax.plot([0, 1], [0, 1], color="grey", lw=1, ls="--", label="calibrated")
+    for name, bins in bins_by_set.items():
+        if not bins:
+            continue
+        x, y = [b["predicted"] for b in bins], [b["observed"] for b in bins]
+        ax.plot(x, y, marker="o", ms=0, lw=1, label=name)
+        ax.scatter(x, y, s=[12 + 4 * b["count"] for b in bins], alpha=0.6, color=ax.lines[-1].get_color())
+    ax.set_xlim(0, 1.02)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("predicted P(ADI #1 < 1 cm), bin mean")
+    ax.set_ylabel("observed share with ADI #1 < 1 cm")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from stages import evaluate
-from tactile6d import layout
+from tactile6d import confidence, layout
 from tactile6d.contacts import sensors_to_landmark_contacts
 from tactile6d.geometry import make_pose
 from tactile6d.io import read_artifact, write_artifact
@@ -24,6 +24,13 @@ def artifacts(tmp_path):
     write_artifact(layout.object_file(tmp_path, "box"), "object",
                    {"vertices": mesh.vertices, "faces": mesh.faces, "metric_points": points,
                     **pack_pieces([(np.asarray(mesh.vertices), np.asarray(mesh.faces))])})
+    surface, faces = trimesh.sample.sample_surface(mesh, 300, seed=1)
+    write_artifact(layout.surface_file(tmp_path, "box"), "surface",
+                   {"points": surface, "normals": mesh.face_normals[faces], "face_index": faces})
+    # a confidence that falls with the spread of the ranked poses (cm) only
+    layout.confidence_model_file(tmp_path).parent.mkdir(parents=True)
+    layout.confidence_model_file(tmp_path).write_text(confidence.ConfidenceModel(
+        confidence.FEATURES, (0.0, -2.0), 0.0, (0.0, 0.0), (1.0, 1.0), 0.25).to_json())
     T_gt = np.stack([make_pose(np.eye(3), [0.1, 0.0, 0.2 + 0.1 * s]) for s in range(2)])
     p = np.array([[0.0, 0.0, 0.025], [0.06, 0.0, 0.0], [0.0, -0.04, 0.0]])
     n = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]])
@@ -72,6 +79,12 @@ def test_metrics_file_has_the_keys_and_the_values(artifacts):
     assert m["ours"]["n_scenes"] == 2
     details = json.loads((artifacts / "eval" / "tiny.json").read_text())
     assert details["ours"]["per_scene"]["box/scene_0"]["contact_image_ok"][:2] == [1.0, 0.0]
+    # ours' confidence: both scenes right, their #2 1 cm away (a rival, scoring the same: ambiguous)
+    assert m["ours"]["n_wrong_adi1cm"] == 0 and np.isnan(m["ours"]["confidence_auroc_adi1cm"])
+    assert m["ours"]["ambiguous_fraction"] == 1.0
+    p = details["ours"]["confidence"]["per_scene"]["box/scene_0"]
+    assert 0.0 < p < 0.5 and m["ours"]["confidence_brier"] == pytest.approx((1 - p) ** 2, rel=1e-6)
+    assert "confidence_auroc_adi1cm" not in m["baseline"]
     table = (artifacts / "eval" / "tiny_table.md").read_text()
     assert "| box |" in table and "| **average** |" in table
 

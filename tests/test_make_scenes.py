@@ -79,6 +79,19 @@ def test_the_calibration_set_is_drawn_from_its_identify_section(artifacts):
     assert not np.allclose(first["T_world_sensors"], other["T_world_sensors"])
 
 
+def test_the_confidence_set_is_drawn_from_its_confidence_section(artifacts):
+    """confidence's spec is confidence.scenes, with its light and kinematics; stamped into the file."""
+    common = [f"paths.artifacts_dir={artifacts}", "objects.names=[prim_box]",
+              "confidence.scenes.scenes_per_object=2", "confidence.scenes.light.rerecorded=0.0"]
+    assert make_scenes.main(["--scene-set", "confidence", *common]) == 0
+    made = read_artifact(layout.scenes_file(artifacts, "confidence"), "scenes")
+    assert made["images"].shape == (2, 3, 320, 240, 3)
+    assert made.config["confidence.scenes"]["seed"] == 5 and "identify.calibration_scenes" not in made.config
+    assert "pose_error_translation" in made and "light_gain" in made  # its kinematics and light
+    assert not made["background_rerecorded"].any()  # rerecorded=0: every background the undrifted one
+    assert np.all(np.linalg.norm(made["pose_error_translation"], axis=-1) > 0)
+
+
 def test_unknown_scene_set(artifacts):
     with pytest.raises(SystemExit):
         make_scenes.main(["--scene-set", "nope", f"paths.artifacts_dir={artifacts}"])

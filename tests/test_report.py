@@ -50,3 +50,31 @@ def test_stage_time_table_groups_items_by_stage_and_sums_them(tmp_path):
 
 def test_stage_time_table_without_records_says_so():
     assert "no stage times recorded" in report.times_section([])[0]
+
+
+def test_confidence_section_tabulates_each_set_and_draws_the_reliability_diagram(tmp_path):
+    from tactile6d import layout
+    from tactile6d.io import write_json
+
+    bins = [{"low": 0.8, "high": 1.0, "count": 30, "predicted": 0.9, "observed": 0.93}]
+    write_json(layout.metrics_file(tmp_path, "confidence"),
+               {"n_scenes": 120, "n_right": 109, "auroc": 0.94, "brier": 0.059, "reliability": bins})
+    for scene_set, wrong, auroc in (("validation", 2, 0.93), ("variation", 0, float("nan"))):
+        write_json(layout.metrics_file(tmp_path, scene_set), {"ours": {
+            "n_scenes": 40, "n_failed": 0, "n_wrong_adi1cm": wrong, "confidence_auroc_adi1cm": auroc,
+            "confidence_brier": 0.04, "confidence_mean": 0.93, "ambiguous_fraction": 0.15}})
+        write_json(tmp_path / "eval" / f"{scene_set}.json", {"ours": {
+            "confidence": {"per_scene": {"a": 0.9, "b": 0.2, "c": float("nan")}},
+            "per_scene": {"a": {"adi": [0.002]}, "b": {"adi": [0.03]}, "c": {"adi": [float("nan")]}}}})
+    figures = tmp_path / "figures"
+    figures.mkdir()
+    text = "\n".join(report.confidence_section(str(tmp_path), figures))
+    assert "| confidence (its own fit set) | 120 | 11 | 0.94 | 0.059 | - | 0.91 | - |" in text
+    assert "| validation | 40 | 2 | 0.93 | 0.040 | 0.93 | 0.95 | 15 % |" in text
+    assert "| variation | 40 | 0 | undefined (none wrong) |" in text
+    assert "offaxis" not in text  # not evaluated: no row
+    assert (figures / "reliability.png").stat().st_size > 1000
+
+
+def test_confidence_section_without_the_stage_says_so(tmp_path):
+    assert report.confidence_section(str(tmp_path), tmp_path) == ["(not run)", ""]

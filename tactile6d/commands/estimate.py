@@ -18,12 +18,18 @@ objects with artifacts in the artifacts directory and those of the configured ob
 (``conf/objects``).
 
 Output, per scene: the best ``T_world_object`` as one ``x y z ax ay az angle`` line, then a short
-summary (scores, selection, time per step); with several scenes each result is headed by a
-``# <scene folder> (<object>)`` line. With ``--json``: one JSON object per line (JSON Lines) with the
-scene folder, the object, the top-K poses as 4x4 matrices, their scores, losses and penetrations, the
-selection diagnostics, the timings and ``load_seconds`` (the time spent loading the object's
-artifacts for that scene, 0 once they are loaded). A progress bar goes to stderr when there are more
-than a few scenes and stderr is a terminal.
+summary (scores, confidence, selection, time per step); with several scenes each result is headed by a
+``# <scene folder> (<object>)`` line. The confidence is the calibrated probability that the best pose
+is within 1 cm ADI of the truth (stage calibrate_confidence; without its model in the artifacts, a
+note says there is none); when other ranked poses, far from the best, explain the contacts about
+equally well, an ``ambiguous:`` line gives their ranks (0 the best): the best may then be the wrong one.
+With ``--json``: one JSON object per line (JSON Lines) with the scene folder, the object, the top-K
+poses as 4x4 matrices, their scores, losses and penetrations, the selection diagnostics, the timings,
+``confidence`` (null without a model), ``ambiguous`` and ``distinct_poses`` (rank, pose and score of
+each pose that explains the contacts about equally well, the best first; empty without a model) and
+``load_seconds`` (the time spent loading the object's artifacts for that scene, 0 once they are
+loaded). A progress bar goes to stderr when there are more than a few scenes and stderr is a
+terminal.
 
 Errors: with one ``--scene``, any error ends the command with one ``error:`` line and exit status 2,
 as for a bad option, an unknown object or a bad config override in every case. With several scenes,
@@ -48,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import layout, photometric
+from tactile6d import confidence, layout, photometric
 from tactile6d.config import CONF_DIR, compose_config
 from tactile6d.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.estimator import Estimate, Estimator
@@ -227,7 +233,7 @@ class EstimatorCache:
 
 
 def summary(result: Estimate, cfg) -> list[str]:
-    """A few human-readable lines: method, scores, selection diagnostics, time per step."""
+    """A few human-readable lines: method, scores, confidence, selection diagnostics, time per step."""
     sel = result.selection
     lines = [
         (
@@ -238,6 +244,7 @@ def summary(result: Estimate, cfg) -> list[str]:
             f"best: score {1000 * result.scores[0]:.2f} mm = loss {1000 * result.losses[0]:.2f} mm "
             f"+ deepest penetration {1000 * result.penetrations[0].max():.2f} mm"
         ),
+        *confidence_lines(result),
     ]
     omegas = ", ".join(str(n) for n in sel.omega_sizes)
     if cfg.select.method == "ours":
@@ -251,6 +258,20 @@ def summary(result: Estimate, cfg) -> list[str]:
                  + (" (capped at N)" if sel.capped else ""))
     steps = ", ".join(f"{k} {v:.3f} s" for k, v in result.seconds.items())
     lines.append(f"time: {steps}")
+    return lines
+
+
+def confidence_lines(result: Estimate) -> list[str]:
+    """The confidence line and, when other poses explain the contacts about equally well, one that says so;
+    one note when the artifacts hold no confidence model."""
+    within = f"{100 * confidence.SUCCESS_ADI:g} cm ADI"
+    if result.confidence is None:
+        return ["confidence: none (no confidence model; `dvc repro calibrate_confidence` makes it)"]
+    lines = [f"confidence {result.confidence:.2f} (P that the best pose is within {within})"]
+    if result.ambiguous:
+        ranks = ", ".join(str(i) for i in result.distinct)
+        lines.append(f"ambiguous: {len(result.distinct)} distinct poses (ranks {ranks}; 0 the best) explain "
+                     "the contacts about equally well: the best may be the wrong one")
     return lines
 
 
