@@ -17,7 +17,7 @@ from tactile6d import layout, meshes
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.data import DataStore, group_files, group_names
 from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.executor import executor_from_config
+from tactile6d.executor import map_objects
 from tactile6d.io import write_artifact, write_json
 from tactile6d.stage_clock import timed
 from tactile6d.surface import sample_surface_even
@@ -94,15 +94,9 @@ def prepare_object(name: str, cfg, artifacts) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
-    workers = int(cfg.prepare.workers)
-    if workers < 1:
-        raise ConfigError(f"prepare.workers must be >= 1, got {workers}")
-    names = args.names
     # Each object is one task: coacd and the fidelity sampling run on one core.
-    with executor_from_config(cfg, max(1, min(workers, len(names)))) as executor:
-        lines = executor.map(prepare_object, names, [cfg] * len(names), [args.objects_dir] * len(names),
-                             desc="prepare_object" if len(names) > 1 else None)
-    for line in lines:
+    for line in map_objects(prepare_object, args.names, cfg, args.objects_dir, int(cfg.prepare.workers),
+                            "prepare.workers", "prepare_object"):
         print(line)
     return 0
 

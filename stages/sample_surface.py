@@ -16,7 +16,7 @@ import trimesh
 from tactile6d import layout
 from tactile6d.config import parse_stage_args, section_to_dict
 from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.executor import executor_from_config
+from tactile6d.executor import map_objects
 from tactile6d.io import read_artifact, write_artifact
 from tactile6d.stage_clock import timed
 from tactile6d.surface import nearest_neighbour_distances, sample_surface_even
@@ -46,14 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_stage_args(argv, __doc__.splitlines()[0], per_object=True)
     if int(cfg.sample.M) < 1 or int(cfg.sample.oversample) < 1:
         raise ConfigError(f"sample.M and sample.oversample must be positive, got {cfg.sample.M}, {cfg.sample.oversample}")
-    workers = int(cfg.sample.workers)
-    if workers < 1:
-        raise ConfigError(f"sample.workers must be >= 1, got {workers}")
-    names = args.names
-    with executor_from_config(cfg, max(1, min(workers, len(names)))) as executor:
-        lines = executor.map(sample_object, names, [cfg] * len(names), [args.objects_dir] * len(names),
-                             desc="sample_surface" if len(names) > 1 else None)
-    for line in lines:
+    for line in map_objects(sample_object, args.names, cfg, args.objects_dir, int(cfg.sample.workers),
+                            "sample.workers", "sample_surface"):
         print(line)
     return 0
 

@@ -405,3 +405,17 @@ def executor_from_config(cfg: Mapping, workers: int, initializer: Callable | Non
         raise ConfigError(f"executor.address must be null or a Dask scheduler address such as "
                           f"'tcp://10.0.0.5:8786', got {address!r}")
     return DaskExecutor(address.strip(), initializer, initargs, float(timeout_s))
+
+
+def map_objects(task: Callable, names: list[str], cfg: Mapping, objects_dir, workers: int, workers_key: str,
+                desc: str) -> list:
+    """``task(name, cfg, objects_dir)`` for every object name, one executor task each (``executor_from_config``
+    with at most ``workers`` local processes, never more than there are names) -> the results in name order.
+    ``workers_key``: the config key ``workers`` came from, named in the ConfigError when it is below 1; desc:
+    the progress bar's label (shown for more than one name). The per-object stages' ``--distractors`` run:
+    each object is one task, since its work runs on one core."""
+    if workers < 1:
+        raise ConfigError(f"{workers_key} must be >= 1, got {workers}")
+    with executor_from_config(cfg, max(1, min(workers, len(names)))) as executor:
+        return executor.map(task, names, [cfg] * len(names), [objects_dir] * len(names),
+                            desc=desc if len(names) > 1 else None)

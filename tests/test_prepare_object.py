@@ -1,4 +1,5 @@
-"""Stage prepare_object: its object file is the same bytes wherever the data directory lies."""
+"""Stages prepare_object and sample_surface: the object file is the same bytes wherever the data directory
+lies; the worker count of their --distractors run is checked."""
 
 import shutil
 
@@ -24,3 +25,14 @@ def test_the_object_file_does_not_depend_on_where_the_data_directory_lies(tmp_pa
         made.append(layout.object_file(artifacts, "036_wood_block"))
     assert read_artifact(made[0], "object").attrs["source"] == "data directory: ycb/036_wood_block/textured_simple.obj"
     assert made[0].read_bytes() == made[1].read_bytes()
+
+
+@pytest.mark.parametrize("stage, key", [("prepare_object", "prepare.workers"), ("sample_surface", "sample.workers")])
+def test_a_worker_count_below_one_is_named(stage, key, tmp_path):
+    import importlib
+
+    from tactile6d.errors import ConfigError
+
+    main = importlib.import_module(f"stages.{stage}").main
+    with pytest.raises(ConfigError, match=f"{key} must be >= 1, got 0"):
+        main(["--object", "prim_box", f"paths.artifacts_dir={tmp_path}", f"{key}=0"])
