@@ -1,0 +1,83 @@
+"""Where a scene set's wrong estimates come from: selection or ranking, and the fit's own floor.
+
+    python scripts/kinematic_check.py --artifacts artifacts --scene-set kinematic
+    python scripts/kinematic_check.py --artifacts artifacts --scene-set kinematic rank.refine_normal_weight=0
+
+Reads a finished pipeline's ``scenes/<set>.h5`` and ours' ``hypotheses.h5`` and ``ranked.h5`` (method
+``ours``), and prints:
+
+- **selection**: of the scenes whose best ranked pose is 1 cm (ADI) or more off, how many had a
+  hypothesis within 1 cm (and 0.5 cm) of the truth among the 50 optimised poses nearest it in position:
+  if all, the ranking picked a wrong pose that selection and the fit had made a right one beside;
+- **the fit's floor**: ``steps.rank.rank`` (refinement and render-and-compare, the ``rank`` config with
+  the overrides given) started from the true pose alone, through the sensor poses and contacts the set
+  gives: the positional error, mean and median (cm), where it ends. On a set whose sensor poses are off
+  (kinematic) that is the error a perfect ranking would still leave.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
+
+from tactile6d import evaluation, layout, metrics
+from tactile6d.collision import PenetrationModel
+from tactile6d.config import compose_config
+from tactile6d.contact import sample_surface
+from tactile6d.io import read_artifact
+from tactile6d.run_artifacts import expand_hypotheses, scene_contacts
+from tactile6d.settings import RankSettings
+from tactile6d.steps.rank import load_mesh, load_pieces, rank
+
+NEAREST = 50  # hypotheses, nearest the truth in position, whose ADI is measured
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--artifacts", default="artifacts")
+    parser.add_argument("--scene-set", default="kinematic")
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value for the refinement from the truth")
+    args = parser.parse_args(argv)
+    settings = RankSettings.from_cfg(compose_config(args.overrides).rank)
+    art = args.artifacts
+    scenes = read_artifact(layout.scenes_file(art, args.scene_set), "scenes")
+    run = layout.run_dir(art, args.scene_set, "ours")
+    hyp, ranked = read_artifact(run / "hypotheses.h5", "hypotheses"), read_artifact(run / "ranked.h5", "ranked")
+
+    loaded = {}
+    wrong, within_1, within_05, floor = 0, 0, 0, []
+    for s in tqdm(range(len(scenes["names"])), desc=args.scene_set, unit="scene"):
+        obj = str(scenes["objects"][s])
+        if obj not in loaded:
+            mesh = load_mesh(art, obj)
+            loaded[obj] = (PenetrationModel(load_pieces(art, obj)), mesh, sample_surface(mesh),
+                           evaluation.load_object_reference(art, obj))
+        model, mesh, surface, ref = loaded[obj]
+        T_true = scenes["T_world_object"][s]
+        if ranked["n_poses"][s] and metrics.adi(ref.points, ranked["poses"][s][0], T_true, ref.tree) >= 0.01:
+            wrong += 1
+            rows = slice(hyp["offsets"][s], hyp["offsets"][s + 1])
+            poses, _ = expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows], hyp["losses"][rows])
+            nearest = np.argsort(np.linalg.norm(poses[:, :3, 3] - T_true[:3, 3], axis=1))[:NEAREST]
+            best = metrics.adi(ref.points, poses[nearest], T_true, ref.tree).min() if len(nearest) else np.inf
+            within_1 += best < 0.01
+            within_05 += best < 0.005
+        refined = rank(model, hyp["T_world_sensors"][s], T_true[None], np.zeros(1), settings, surface,
+                       scene_contacts(hyp, s), mesh)
+        floor.append(np.linalg.norm(refined.poses[0][:3, 3] - T_true[:3, 3]))
+    floor = 100 * np.array(floor)
+    print(f"{args.scene_set}: {wrong} of {len(floor)} scenes with the best pose 1 cm or more off; in "
+          f"{within_1} of them a hypothesis within 1 cm of the truth (within 0.5 cm: {within_05})")
+    print(f"refined from the true pose ({' '.join(args.overrides) or 'the rank config as it is'}): positional "
+          f"error {floor.mean():.2f} cm mean, {np.median(floor):.2f} cm median")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
