@@ -29,6 +29,13 @@ tells apart hypotheses that fit the points equally well. ``surface_losses`` give
 a refined pose (mean absolute point-to-plane residual, m; mean normal angle, rad), from which the
 ranking scores refined poses (``estimator.rank``).
 
+Sensor poses from a robot's forward kinematics are off by millimetres and degrees, so the contacts read
+through them are too, each sensor by its own error, and no single object pose makes every sensor touch.
+``refine_poses_and_sensors`` (used when ``rank.pose_sigma_mm``/``_deg`` are set) lets each sensor see the
+object through a small correction of its own, under a Gaussian prior of the sensor poses' expected error:
+what no object pose explains goes to the sensors, at a cost ``sensor_corrections_cost`` that the ranking
+adds to the score.
+
 Units: metres, radians. Poses are 4x4 float64 ``T_world_object``.
 """
 
@@ -36,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile6d.geometry import make_pose, rotvec_to_rotmat, skew
+from tactile6d.geometry import make_pose, rotmat_to_rotvec, rotvec_to_rotmat, skew
 
 # A prior anchoring each pose to its start: each metre of accumulated translation counts as a
 # residual of _PRIOR_T metres, each radian of rotation as _PRIOR_R metres. Directions the contacts
@@ -51,6 +58,10 @@ _MAX_STEP_R = np.radians(5.0)
 # Scales of the robust weights: point-to-plane residual (m), normal difference (~ rad).
 _ROBUST_DISTANCE = 0.002
 _ROBUST_ANGLE = np.radians(10.0)
+# How far (m) a contact of the right pose, seen through exact sensor poses, is off the surface: the noise the
+# sensor corrections' prior is weighed against (a correction of one sigma costs as much as a residual this
+# large). 0.2, 0.5 and 1 mm were tried on the kinematic set (docs/real_sensors.md); 0.5 mm ranked best.
+FIT_NOISE = 0.0005
 
 
 def _match(surface, q: np.ndarray, u: np.ndarray, normal_weight: float, k: int):
@@ -82,7 +93,12 @@ def _to_object(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def _local(poses: np.ndarray, sensor_points: np.ndarray, sensor_normals: np.ndarray):
-    """poses (P, 4, 4) -> contact points q and normals u in each pose's object frame, (P, L, 3)."""
+    """poses (P, 4, 4), or (P, L, 4, 4) the object as each sensor sees it (``refine_poses_and_sensors``)
+    -> contact points q and normals u in each pose's object frame, (P, L, 3)."""
+    if poses.ndim == 4:
+        R = poses[..., :3, :3]
+        return (np.einsum("plba,plb->pla", R, sensor_points[None] - poses[..., :3, 3]),
+                np.einsum("plba,lb->pla", R, sensor_normals))
     return _to_object(poses, sensor_points), np.einsum("pba,lb->pla", poses[:, :3, :3], sensor_normals)
 
 
@@ -170,10 +186,125 @@ def surface_losses(
 ) -> tuple[np.ndarray, np.ndarray]:
     """How well each pose (P, 4, 4) makes the sensors touch the surface -> (distance (P,) m, angle (P,) rad):
     the mean over sensors of |point-to-plane residual| and of the angle between the contact normal and
-    the matched surface normal (matching as in ``refine_poses``)."""
-    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
+    the matched surface normal (matching as in ``refine_poses``). Poses (P, L, 4, 4): the object as each
+    sensor sees it (``refine_poses_and_sensors``)."""
+    poses = np.asarray(poses, dtype=np.float64)
+    T, s, n = _as_arrays(poses if poses.ndim == 3 else poses[:, 0], sensor_points, sensor_normals)
+    T = T if poses.ndim == 3 else poses
     q, u = _local(T, s, n)
     c, m = _match(surface, q, u, float(normal_weight), k)
     distance = np.abs(np.sum(m * (q - c), axis=-1) - offset).mean(axis=1)
     angle = np.arccos(np.clip(np.sum(u * m, axis=-1), -1.0, 1.0)).mean(axis=1)
     return distance, angle
+
+
+def refine_poses_and_sensors(
+    surface,
+    poses: np.ndarray,
+    sensor_points: np.ndarray,
+    sensor_normals: np.ndarray,
+    sigma_contact: float,
+    sigma_angle: float,
+    fit_noise: float = FIT_NOISE,
+    n_iterations: int = 8,
+    normal_weight: float = 0.01,
+    offset: float = 0.0,
+    k: int = 32,
+    patch_points: np.ndarray | None = None,
+    patch_weights: np.ndarray | None = None,
+    patch_owners: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``refine_poses`` for sensor poses that are off (forward kinematics): each sensor's small pose error
+    is estimated beside the object's pose -> (poses (P, 4, 4), seen (P, L, 4, 4)).
+
+    Sensor i sees the object at ``seen[p, i] = poses[p] exp(zeta_pi)`` instead of ``poses[p]``: everything
+    read through sensor i (its contact point and normal, its patch points) is fitted against the object at
+    ``seen[p, i]``. Each correction zeta_pi = (v, omega) (object frame) pays a Gaussian prior: the shift of
+    the contact point, ``v + omega x q_i``, has standard deviation ``sigma_contact`` (m) per axis and the
+    turn ``omega`` ``sigma_angle`` (rad), both against the residuals' own noise ``fit_noise`` (m), so that a
+    correction of one sigma costs as much as a residual of ``fit_noise``. Contacts that no single object
+    pose explains are then explained by small sensor errors instead of by moving the object, which the
+    contacts common to every sensor still do. Other arguments as ``refine_poses``; patch_owners (M,) the
+    sensor each patch point belongs to. With sigmas of 0 use ``refine_poses``.
+    """
+    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
+    n_poses, n_sensors = T.shape[0], s.shape[0]
+    seen = np.repeat(T[:, None], n_sensors, axis=1)
+    if n_poses == 0:
+        return T, seen
+    w = float(normal_weight)
+    dim = 6 + 6 * n_sensors
+    prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
+    moved = np.zeros((n_poses, 6))
+    zeta = np.zeros((n_poses, n_sensors, 6))
+    has_patch = patch_points is not None and len(patch_points) > 0
+    if has_patch:
+        extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
+        extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
+        owners = np.eye(n_sensors)[np.asarray(patch_owners, dtype=int).reshape(-1)]  # (M, L) one-hot
+    a_scale, b_scale = fit_noise / sigma_contact, fit_noise / sigma_angle
+    for _ in range(int(n_iterations)):
+        R_seen = seen[..., :3, :3]
+        q, u = _local(seen, s, n)  # (P, L, 3), each through its own sensor
+        c, m = _match(surface, q, u, w, k)
+        r = np.sum(m * (q - c), axis=-1) - offset  # (P, L)
+        J = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, L, 6)
+        rho = 1.0 / (1.0 + (r / _ROBUST_DISTANCE) ** 2)
+        B = np.einsum("pl,pla,plb->plab", rho, J, J)  # each sensor's rows' normal equations (P, L, 6, 6)
+        g = np.einsum("pl,pla,pl->pla", rho, J, r)
+        if has_patch:
+            R_own = np.einsum("ml,plab->pmab", owners, R_seen)
+            t_own = np.einsum("ml,pla->pma", owners, seen[..., :3, 3])
+            qp = np.einsum("pmba,pmb->pma", R_own, extra[None] - t_own)
+            _, idx = surface.tree.query(qp.reshape(-1, 3))
+            cp, mp = surface.points[idx].reshape(qp.shape), surface.normals[idx].reshape(qp.shape)
+            rp = np.sum(mp * (qp - cp), axis=-1)
+            Jp = np.concatenate([-mp, np.cross(mp, qp)], axis=-1)
+            rhop = extra_w / (1.0 + (rp / _ROBUST_DISTANCE) ** 2)
+            B += np.einsum("pm,ml,pma,pmb->plab", rhop, owners, Jp, Jp)
+            g += np.einsum("pm,ml,pma,pm->pla", rhop, owners, Jp, rp)
+        if w > 0:
+            r_n = w * (u - m)
+            J_n = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
+            rho_n = 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+            B[..., 3:, 3:] += np.einsum("pl,plia,plib->plab", rho_n, J_n, J_n)
+            g[..., 3:] += np.einsum("pl,plia,pli->pla", rho_n, J_n, r_n)
+        # The sensors' priors: G zeta = (a_scale (v - [q]x omega), b_scale omega).
+        G = np.zeros((n_poses, n_sensors, 6, 6))
+        G[..., :3, :3] = a_scale * np.eye(3)
+        G[..., :3, 3:] = -a_scale * skew(q.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
+        G[..., 3:, 3:] = b_scale * np.eye(3)
+        sensor_prior = np.einsum("plia,plib->plab", G, G)
+        H = np.zeros((n_poses, dim, dim))
+        rhs = np.zeros((n_poses, dim))
+        H[:, :6, :6] = B.sum(axis=1) + prior
+        rhs[:, :6] = g.sum(axis=1) + moved @ prior
+        for i in range(n_sensors):
+            block = slice(6 + 6 * i, 12 + 6 * i)
+            H[:, :6, block] = B[:, i]
+            H[:, block, :6] = B[:, i]
+            H[:, block, block] = B[:, i] + sensor_prior[:, i]
+            rhs[:, block] = g[:, i] + np.einsum("pab,pb->pa", sensor_prior[:, i], zeta[:, i])
+        step = -np.linalg.solve(H, rhs[..., None])[..., 0].reshape(n_poses, 1 + n_sensors, 6)
+        for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
+            norm = np.linalg.norm(step[..., part], axis=-1, keepdims=True)
+            step[..., part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+        moved += step[:, 0]
+        zeta += step[:, 1:]
+        T = T @ make_pose(rotvec_to_rotmat(step[:, 0, 3:]), step[:, 0, :3])
+        seen = T[:, None] @ make_pose(rotvec_to_rotmat(zeta[..., 3:].reshape(-1, 3)),
+                                      zeta[..., :3].reshape(-1, 3)).reshape(n_poses, n_sensors, 4, 4)
+    return T, seen
+
+
+def sensor_corrections_cost(poses: np.ndarray, seen: np.ndarray, sensor_points: np.ndarray, sigma_contact: float,
+                            sigma_angle: float) -> np.ndarray:
+    """How unlikely the sensor corrections of ``refine_poses_and_sensors`` are: poses (P, 4, 4), seen (P, L, 4, 4),
+    sensor_points (L, 3) world -> (P,) the mean over sensors of the squared Mahalanobis norm of the correction
+    (its shift of the contact point over ``sigma_contact`` m, its turn over ``sigma_angle`` rad); 0 for none."""
+    correction = np.linalg.inv(np.asarray(poses, dtype=np.float64))[:, None] @ seen  # poses^-1 seen = exp(zeta)
+    omega = rotmat_to_rotvec(correction[..., :3, :3].reshape(-1, 3, 3)).reshape(correction.shape[:2] + (3,))
+    q, _ = _local(np.asarray(seen, dtype=np.float64), np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3),
+                  np.zeros_like(np.asarray(sensor_points, dtype=np.float64)).reshape(-1, 3))
+    shift = correction[..., :3, 3] + np.cross(omega, q)
+    return (np.sum(shift**2, axis=-1) / sigma_contact**2 + np.sum(omega**2, axis=-1) / sigma_angle**2).mean(axis=1)

@@ -165,6 +165,7 @@ class RankSettings:
     agreement_free_depth_weight: float
     pose_sigma_mm: float
     pose_sigma_deg: float
+    pose_correction_weight: float
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> RankSettings:
@@ -182,9 +183,9 @@ class RankSettings:
                    out.agreement_depth_weight, out.agreement_free_area_weight, out.agreement_free_depth_weight)
         if min(weights) < 0:
             raise ConfigError(f"rank.agreement_* weights and margin must be >= 0, got {weights}")
-        if not (out.pose_sigma_mm >= 0 and out.pose_sigma_deg >= 0):
-            raise ConfigError(f"rank.pose_sigma_mm and rank.pose_sigma_deg must be >= 0, got {out.pose_sigma_mm}, "
-                              f"{out.pose_sigma_deg}")
+        if not (out.pose_sigma_mm >= 0 and out.pose_sigma_deg >= 0 and out.pose_correction_weight >= 0):
+            raise ConfigError(f"rank.pose_sigma_mm, rank.pose_sigma_deg and rank.pose_correction_weight must be >= 0, "
+                              f"got {out.pose_sigma_mm}, {out.pose_sigma_deg}, {out.pose_correction_weight}")
         if out.agreement_step < 1 or 240 % out.agreement_step or 320 % out.agreement_step:
             raise ConfigError(f"rank.agreement_step must divide 240 and 320, got {out.agreement_step}")
         return out
@@ -197,6 +198,19 @@ class RankSettings:
         (``sensor.GEL_CENTER``'s distance from the sensor's origin), combined in quadrature."""
         lever = float(np.linalg.norm(GEL_CENTER))
         return float(np.hypot(1e-3 * self.pose_sigma_mm, lever * np.radians(self.pose_sigma_deg)))
+
+    @property
+    def corrects_sensors(self) -> bool:
+        """Whether the refinement estimates each sensor's small pose error beside the object's pose
+        (``refine.refine_poses_and_sensors``): when the sensor poses are not declared exact."""
+        return self.refine and self.penetration_allowance > 0
+
+    @property
+    def sensor_sigmas(self) -> tuple[float, float]:
+        """The prior of the sensor corrections: (m, rad), the shift of a sensor's contact point
+        (``penetration_allowance``) and its turn, one standard deviation per axis. A sigma of 0 is taken
+        as a thousandth of a millimetre or degree: that part of the pose is as good as exact."""
+        return max(self.penetration_allowance, 1e-6), float(np.radians(max(self.pose_sigma_deg, 1e-3)))
 
     @property
     def uses_agreement(self) -> bool:

@@ -168,6 +168,28 @@ def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
     np.testing.assert_allclose(rk.penetration_cost(np.array([[0.001, 0.003], [0.0, 0.0005]]), 0.002), [0.001, 0.0])
 
 
+def test_the_sensor_pose_sigmas_switch_the_sensor_corrections():
+    from tactile6d.config import compose_config
+    from tactile6d.settings import RankSettings
+
+    def settings(*overrides):
+        return RankSettings.from_cfg(compose_config(list(overrides)).rank)
+
+    default = settings()
+    # The default is a hand's kinematics, not exact poses; the paper's method takes the poses as exact.
+    assert default.pose_sigma_mm > 0 and default.pose_sigma_deg > 0 and default.corrects_sensors
+    assert default.sensor_sigmas == pytest.approx((default.penetration_allowance, np.radians(default.pose_sigma_deg)))
+    paper = settings("preset=paper")
+    assert paper.penetration_allowance == 0.0 and not paper.corrects_sensors
+    assert not settings("rank.pose_sigma_mm=0", "rank.pose_sigma_deg=0").corrects_sensors
+    assert not settings("rank.refine=false").corrects_sensors
+    # One sigma alone still corrects; the other part of the pose is then held (nearly) exact.
+    only_mm = settings("rank.pose_sigma_mm=1", "rank.pose_sigma_deg=0")
+    assert only_mm.corrects_sensors and only_mm.sensor_sigmas[1] < np.radians(0.01)
+    with pytest.raises(Exception, match="pose_correction_weight"):
+        settings("rank.pose_correction_weight=-1")
+
+
 def test_lazy_ranking_equals_scoring_everything():
     rng = np.random.default_rng(3)
     model, T_true, T_sensors = _touching_scene()

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 from test_estimator import (
+    EXACT_POSES,
     CUTS,
     HALF,
     T_TRUE,
@@ -162,11 +163,14 @@ def test_patch_contacts_lie_on_the_surface_where_landmarks_do_not(rendered):
 @pytest.mark.slow
 def test_patch_contacts_recover_the_pose_of_tilted_off_centre_sensors(rendered):
     T, images = rendered["T_world_sensors"], rendered["images"]
-    dt_patch, dr_patch = pose_errors(make_estimator(rendered, **{"select.contacts": "patch"}).estimate(T, images).best,
-                                     T_TRUE)
-    dt_landmark, _ = pose_errors(make_estimator(rendered).estimate(T, images).best, T_TRUE)
+    dt_patch, dr_patch = pose_errors(make_estimator(rendered, **EXACT_POSES, **{"select.contacts": "patch"}).estimate(
+        T, images).best, T_TRUE)
+    dt_landmark, _ = pose_errors(make_estimator(rendered, **EXACT_POSES).estimate(T, images).best, T_TRUE)
     # Measured: 5.6 mm and 16 deg from the patches, 25 mm from the landmarks. Large flat faces pressed
     # tilted are the patches' weak case: the imprint reaches the image border, where the depth is free.
+    # The scene's sensor poses are exact and declared so: with the default sigmas (a hand's kinematics) the
+    # patches' estimate was 11 mm off here, the sensor corrections letting a weak patch move its sensor
+    # rather than the object (docs/real_sensors.md).
     assert dt_patch < 0.01 and dr_patch < 25.0
     assert dt_patch < 0.5 * dt_landmark
 
@@ -174,7 +178,7 @@ def test_patch_contacts_recover_the_pose_of_tilted_off_centre_sensors(rendered):
 @pytest.mark.slow
 def test_fitting_the_patches_pressed_gel_brings_the_rotation_closer(rendered):
     T, images = rendered["T_world_sensors"], rendered["images"]
-    point, dense = ({"select.contacts": "patch", "rank.refine_patch_points": n} for n in (0, 32))
+    point, dense = ({**EXACT_POSES, "select.contacts": "patch", "rank.refine_patch_points": n} for n in (0, 32))
     dt_point, dr_point = pose_errors(make_estimator(rendered, **point).estimate(T, images).best, T_TRUE)
     dt_dense, dr_dense = pose_errors(make_estimator(rendered, **dense).estimate(T, images).best, T_TRUE)
     # Measured here: 16 deg -> 5 deg of rotation error, the position 5.6 -> 7.9 mm (these tilted flat faces are

@@ -107,3 +107,55 @@ def test_patch_points_fix_the_rotation_that_three_contact_points_leave_free():
                                      patch_points=patch, patch_weights=weights)[0]
     assert np.degrees(g.rotation_angle(with_patch[:3, :3], T_true[:3, :3])) < 0.3
     assert np.linalg.norm(with_patch[:3, 3] - T_true[:3, 3]) < 5e-4
+
+
+def test_sensor_corrections_vanish_as_their_sigmas_do():
+    # With the sensor poses declared (nearly) exact, the joint fit is the plain refinement.
+    rng = np.random.default_rng(3)
+    surface = _surface("box")
+    points, normals = CONTACTS["box"]
+    T_true = g.make_pose(g.random_rotations(1, rng)[0], [0.1, 0.0, 0.2])
+    T_sensors = T_true @ sensor_poses_touching(points, normals, 0.0, 0.002)
+    s, n = contact_points(T_sensors), contact_normals(T_sensors)
+    wrong = T_true @ g.make_pose(g.rotvec_to_rotmat(np.radians(3.0) * np.array([0.0, 0.6, 0.8])), [0.002, 0.001, -0.002])
+    plain = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10)
+    joint, seen = refine.refine_poses_and_sensors(surface, wrong[None], s, n, 1e-9, 1e-9, n_iterations=10)
+    assert seen.shape == (1, 3, 4, 4)
+    np.testing.assert_allclose(joint, plain, atol=1e-6)
+    np.testing.assert_allclose(seen, np.repeat(joint[:, None], 3, axis=1), atol=1e-6)
+
+
+def test_sensor_corrections_absorb_what_no_object_pose_explains():
+    # Two sensors squeeze the box's +-x faces, a third touches +z, each with its patch's points; the +x
+    # sensor reports its contact 2 mm outside the face (its pose is off). No object pose touches all three:
+    # the plain refinement turns the object by degrees to spread the contradiction, the joint fit shares the
+    # 2 mm between the two squeezing sensors (equal priors) and keeps the object's orientation.
+    surface = _surface("box")
+    T_true = g.make_pose(g.rotvec_to_rotmat(np.array([0.3, -0.2, 0.5])), [0.1, 0.0, 0.2])
+    local_points = np.array([[0.052, 0.01, -0.02], [-0.05, -0.01, 0.02], [0.01, 0.0, 0.08]])
+    local_normals = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 0, 1.0]])
+    local_patch = np.concatenate([_face_patch(p, m) for p, m in zip(local_points, local_normals)])
+    s, n = local_points @ T_true[:3, :3].T + T_true[:3, 3], local_normals @ T_true[:3, :3].T
+    patch, owners, weights = local_patch @ T_true[:3, :3].T + T_true[:3, 3], np.repeat(np.arange(3), 25), np.full(75, 0.2)
+    sigma_contact, sigma_angle = 0.0015, np.radians(1.5)
+    plain = refine.refine_poses(surface, T_true[None], s, n, n_iterations=10, patch_points=patch,
+                                patch_weights=weights)
+    joint, seen = refine.refine_poses_and_sensors(surface, T_true[None], s, n, sigma_contact, sigma_angle,
+                                                  n_iterations=10, patch_points=patch, patch_weights=weights,
+                                                  patch_owners=owners)
+    assert np.degrees(g.rotation_angle(plain[0, :3, :3], T_true[:3, :3])) > 1.5
+    assert np.degrees(g.rotation_angle(joint[0, :3, :3], T_true[:3, :3])) < 1.0
+    _, angle_plain = refine.surface_losses(surface, plain, s, n)
+    _, angle_joint = refine.surface_losses(surface, seen, s, n)
+    assert angle_joint[0] < 0.5 * angle_plain[0]
+    # Each squeezing sensor sees the object moved along x (object frame), one each way; the third hardly at all.
+    shifts = np.array([(np.linalg.inv(joint[0]) @ seen[0, i])[:3, 3] for i in range(3)])
+    assert shifts[0, 0] > 5e-4 and shifts[1, 0] < -5e-4
+    assert np.linalg.norm(shifts[2]) < 4e-4
+    # The cost: 0 without corrections, and the squared Mahalanobis norm, so a quarter with sigmas twice as large.
+    cost = refine.sensor_corrections_cost(joint, seen, s, sigma_contact, sigma_angle)
+    assert cost[0] > 0.05
+    np.testing.assert_allclose(refine.sensor_corrections_cost(joint, seen, s, 2 * sigma_contact, 2 * sigma_angle),
+                               cost / 4, rtol=1e-9)
+    np.testing.assert_allclose(refine.sensor_corrections_cost(joint, np.repeat(joint[:, None], 3, axis=1), s,
+                                                              sigma_contact, sigma_angle), 0.0, atol=1e-12)

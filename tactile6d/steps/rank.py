@@ -76,6 +76,8 @@ def rank(
     if not (settings.refine or compare):
         return first
     candidates, new_losses, depths, n_scored = first.poses, first.losses, first.penetrations, first.n_scored
+    scored_depths, correction_cost = depths, 0.0
+    seen = None  # (P, L, 4, 4) the object as each corrected sensor sees it, when the sensors are corrected
     if settings.refine:
         s, n = contacts.points, contacts.normals
         w, offset = float(settings.refine_normal_weight), contacts.offsets(settings.refine_offset)
@@ -83,16 +85,26 @@ def rank(
         # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
         per_sensor = np.bincount(owners, minlength=len(s))[owners]
         extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
-        candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w, offset,
-                                             patch_points=extra, patch_weights=extra_w)
-        distance, angle = refinement.surface_losses(surface, candidates, s, n, w, offset)
+        if settings.corrects_sensors:
+            sigma_contact, sigma_angle = settings.sensor_sigmas
+            candidates, seen = refinement.refine_poses_and_sensors(
+                surface, candidates, s, n, sigma_contact, sigma_angle, n_iterations=int(settings.refine_iterations),
+                normal_weight=w, offset=offset, patch_points=extra, patch_weights=extra_w, patch_owners=owners)
+            correction_cost = refinement.sensor_corrections_cost(candidates, seen, s, sigma_contact, sigma_angle)
+        else:
+            candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w,
+                                                 offset, patch_points=extra, patch_weights=extra_w)
+        distance, angle = refinement.surface_losses(surface, candidates if seen is None else seen, s, n, w, offset)
         new_losses = distance + w * angle
+        # Reported: the penetrations through the sensor poses as given; scored: through the corrected ones.
         depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
+        scored_depths = depths if seen is None else seen_penetrations(model, seen, T_world_sensors)
         n_scored += len(candidates)
-    scores = new_losses + ranking.penetration_cost(depths, settings.penetration_allowance)
+    scores = new_losses + ranking.penetration_cost(scored_depths, settings.penetration_allowance)
+    scores = scores + settings.pose_correction_weight * correction_cost
     if compare:
-        scores = scores + settings.agreement_weight * agreement_cost(mesh, candidates, T_world_sensors, contacts,
-                                                                     settings)
+        scores = scores + settings.agreement_weight * agreement_cost(
+            mesh, candidates if seen is None else seen, T_world_sensors, contacts, settings)
     kept = ranking.distinct_in_order(
         candidates, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
         float(np.radians(settings.dedup_rotation)), int(settings.top_k),
@@ -101,16 +113,29 @@ def rank(
                                n_scored)
 
 
+def seen_penetrations(model: collision.PenetrationModel, seen: np.ndarray, T_world_sensors: np.ndarray) -> np.ndarray:
+    """(P, L) m: each sensor's penetration by the object as that sensor sees it, seen (P, L, 4, 4)."""
+    return np.stack([collision.poses_to_penetrations(model, seen[:, i], T_world_sensors[i : i + 1])[:, 0]
+                     for i in range(len(T_world_sensors))], axis=1)
+
+
 def agreement_cost(mesh, poses: np.ndarray, T_world_sensors: np.ndarray, contacts: Contacts,
                    settings: RankSettings) -> np.ndarray:
     """Render-and-compare cost (P,) of poses (P, 4, 4) against the observed patches of ``contacts``:
     ``agreement.agreement_to_cost`` of the terms on the ray grid of ``rank.agreement_step`` pixels, a
-    block being pressed when at least half of its pixels are in the observed mask."""
+    block being pressed when at least half of its pixels are in the observed mask. Poses (P, L, 4, 4):
+    the object as each sensor sees it (``refine.refine_poses_and_sensors``)."""
     step = int(settings.agreement_step)
     observed_mask = agreement.image_to_grid(contacts.masks, step) >= 0.5
     observed_depth = agreement.image_to_grid(contacts.depths, step)
-    terms = agreement.poses_to_agreement(mesh, poses, T_world_sensors, observed_mask, observed_depth, step,
-                                         float(settings.agreement_free_margin))
+    margin = float(settings.agreement_free_margin)
+    if poses.ndim == 4:
+        per_sensor = [agreement.poses_to_agreement(mesh, poses[:, i], T_world_sensors[i : i + 1], observed_mask[i : i + 1],
+                                                   observed_depth[i : i + 1], step, margin)
+                      for i in range(len(T_world_sensors))]
+        terms = {key: np.concatenate([t[key] for t in per_sensor], axis=1) for key in per_sensor[0]}
+    else:
+        terms = agreement.poses_to_agreement(mesh, poses, T_world_sensors, observed_mask, observed_depth, step, margin)
     return agreement.agreement_to_cost(
         terms,
         mask_weight=float(settings.agreement_mask_weight),
