@@ -32,7 +32,7 @@ from tactile6d.config import compose_config
 from tactile6d.contact import sample_surface
 from tactile6d.io import read_artifact
 from tactile6d.run_artifacts import expand_hypotheses, scene_contacts
-from tactile6d.settings import RankSettings
+from tactile6d.settings import RankSettings, SensorSettings
 from tactile6d.steps.rank import load_mesh, load_pieces, rank
 
 NEAREST = 50  # hypotheses, nearest the truth in position, whose ADI is measured
@@ -44,7 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scene-set", default="kinematic")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value for the refinement from the truth")
     args = parser.parse_args(argv)
-    settings = RankSettings.from_cfg(compose_config(args.overrides).rank)
+    cfg = compose_config(args.overrides)
+    settings, sensors = RankSettings.from_cfg(cfg.rank), SensorSettings.from_cfg(cfg.sensors)
     art = args.artifacts
     scenes = read_artifact(layout.scenes_file(art, args.scene_set), "scenes")
     run = layout.run_dir(art, args.scene_set, "ours")
@@ -69,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
             within_1 += best < 0.01
             within_05 += best < 0.005
         refined = rank(model, hyp["T_world_sensors"][s], T_true[None], np.zeros(1), settings, surface,
-                       scene_contacts(hyp, s), mesh)
+                       scene_contacts(hyp, s), mesh, sensors=sensors)
         floor.append(np.linalg.norm(refined.poses[0][:3, 3] - T_true[:3, 3]))
     floor = 100 * np.array(floor)
     print(f"{args.scene_set}: {wrong} of {len(floor)} scenes with the best pose 1 cm or more off; in "

@@ -1,7 +1,7 @@
 """Stage optimize: pose hypotheses for every scene's tuples (the paper's optimisation step).
 
 Reads ``artifacts/runs/<set>/<method>/tuples.h5`` (tuples and the sensors' contacts), each scene object's
-``surfaces/<obj>.h5``, and config section ``optimize``. Writes ``hypotheses.h5`` beside it: per scene the hypotheses stacked with offsets,
+``surfaces/<obj>.h5``, and config sections ``optimize`` and ``sensors``. Writes ``hypotheses.h5`` beside it: per scene the hypotheses stacked with offsets,
 each stored compactly as float32 translation (m) and rotation vector (rad), its loss (m, float32) and the
 index of its tuple within the scene; plus the seconds spent optimising each scene.
 """
@@ -30,7 +30,7 @@ from tactile6d.run_artifacts import (
     stack_ragged,
 )
 from tactile6d.schemas import CONTACT_FIELDS, PATCH_FIELDS
-from tactile6d.settings import OptimizeSettings
+from tactile6d.settings import OptimizeSettings, SensorSettings
 from tactile6d.stage_clock import timed
 from tactile6d.steps.optimize import optimize
 
@@ -38,6 +38,7 @@ from tactile6d.steps.optimize import optimize
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
     settings = OptimizeSettings.from_cfg(cfg.optimize)
+    sensors = SensorSettings.from_cfg(cfg.sensors)
     if settings.solver == "gd":
         use_cpu_devices(settings.cpu_devices)  # before JAX runs anything in this process
     artifacts = cfg.paths.artifacts_dir
@@ -59,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         t0 = time.perf_counter()
         hypotheses = optimize(points_of[objects[s]], scene_contacts(selected, s), tuples, settings,
-                              normals_of[objects[s]])
+                              normals_of[objects[s]], sensors=sensors)
         seconds[s] = time.perf_counter() - t0
         poses.append(hypotheses.poses)
         losses.append(hypotheses.losses)
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
             "seconds_optimize": seconds,
         },
         attrs={"scene_set": args.scene_set, "method": args.method},
-        config={"optimize": section_to_dict(cfg, "optimize")},
+        config={"optimize": section_to_dict(cfg, "optimize"), "sensors": section_to_dict(cfg, "sensors")},
         compression="lzf",
     )
     return 0

@@ -1,7 +1,7 @@
 """Stage rank: the top-k distinct poses of every scene by loss + deepest sensor penetration (the paper's collision-aware ranking).
 
 Reads ``artifacts/runs/<set>/<method>/hypotheses.h5`` (with the sensors' contacts), each scene object's
-``objects/<obj>.h5`` (collision pieces and, for the re-scoring, the mesh), and config section ``rank``. Writes ``ranked.h5`` beside it: per scene the top-k poses (S, K, 4, 4)
+``objects/<obj>.h5`` (collision pieces and, for the re-scoring, the mesh), and config sections ``rank`` and ``sensors``. Writes ``ranked.h5`` beside it: per scene the top-k poses (S, K, 4, 4)
 with their scores, losses and penetrations (rows past ``n_poses`` are NaN), and the seconds of every step
 (encode, select, optimize, rank), so that the evaluation reads one file.
 """
@@ -28,7 +28,7 @@ from tactile6d.run_artifacts import (
     scene_contacts,
 )
 from tactile6d.schemas import CONTACT_FIELDS
-from tactile6d.settings import RankSettings
+from tactile6d.settings import RankSettings, SensorSettings
 from tactile6d.stage_clock import timed
 from tactile6d.steps.rank import load_mesh, load_pieces, rank
 
@@ -36,6 +36,7 @@ from tactile6d.steps.rank import load_mesh, load_pieces, rank
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
     settings = RankSettings.from_cfg(cfg.rank)
+    sensors = SensorSettings.from_cfg(cfg.sensors)
     artifacts = cfg.paths.artifacts_dir
     run = layout.run_dir(artifacts, args.scene_set, args.method)
     hyp = read_artifact(run / "hypotheses.h5", "hypotheses")
@@ -57,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         candidates, losses_in = expand_hypotheses(hyp["translations"][rows], hyp["rotvecs"][rows], hyp["losses"][rows])
         t0 = time.perf_counter()
         ranked = rank(models[objects[s]], T_world_sensors[s], candidates, losses_in, settings, surfaces[objects[s]],
-                      scene_contacts(hyp, s), meshes[objects[s]])
+                      scene_contacts(hyp, s), meshes[objects[s]], sensors=sensors)
         seconds[s] = time.perf_counter() - t0
         n = n_poses[s] = len(ranked.poses)
         poses[s, :n], scores[s, :n], losses[s, :n], penetrations[s, :n] = (
@@ -75,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
             "n_poses": n_poses, "seconds_rank": seconds,
         },
         attrs={"scene_set": args.scene_set, "method": args.method},
-        config={"rank": section_to_dict(cfg, "rank")},
+        config={"rank": section_to_dict(cfg, "rank"), "sensors": section_to_dict(cfg, "sensors")},
     )
     return 0
 

@@ -31,7 +31,7 @@ from tactile6d.run_artifacts import (
     stack_ragged,
 )
 from tactile6d.scenes import scene_set_from_artifact
-from tactile6d.settings import SelectSettings
+from tactile6d.settings import SelectSettings, SensorSettings
 from tactile6d.stage_clock import timed
 from tactile6d.steps.encode import (
     LatentAngleEncoder,
@@ -74,6 +74,7 @@ class Database:
 def main(argv: list[str] | None = None) -> int:
     args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
     settings = SelectSettings.from_cfg(cfg.select)
+    sensors = SensorSettings.from_cfg(cfg.sensors)
     artifacts = cfg.paths.artifacts_dir
     scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes"))
     n_scenes, n_sensors = scenes.T_world_sensors.shape[:2]
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         t1 = time.perf_counter()
         seconds[s, 0] = t1 - t0
         try:
-            chosen = select(points, db_angles, contacts[s], angles[s], settings, normals)
+            chosen = select(points, db_angles, contacts[s], angles[s], settings, normals, sensors=sensors)
         except NoMatch as exc:
             # A scene that matches nothing is a failed estimate, not a failed pipeline; bad input stops it.
             failure[s] = str(exc)
@@ -135,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
             "failure": np.asarray(failure, dtype=str), **stack_contacts(contacts, n_sensors),
         },
         attrs={"scene_set": args.scene_set, "method": args.method},
-        config={"select": section_to_dict(cfg, "select"), "render": {"background": cfg.render.background}},
+        config={"select": section_to_dict(cfg, "select"), "sensors": section_to_dict(cfg, "sensors"),
+                "render": {"background": cfg.render.background}},
         compression="lzf",
     )
     return 0

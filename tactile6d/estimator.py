@@ -324,11 +324,13 @@ class Estimator:
 
     def select(self, contacts: Contacts, angles: np.ndarray | None = None) -> Selection:
         """Candidate tuples for the sensors' contacts (``contacts``), given the images' angles (L,)."""
-        return select_step.select(self.points, self.db_angles, contacts, angles, self.settings.select, self.normals)
+        return select_step.select(self.points, self.db_angles, contacts, angles, self.settings.select, self.normals,
+                                  sensors=self.settings.sensors)
 
     def optimize(self, contacts: Contacts, tuples: np.ndarray) -> optimization.PoseHypotheses:
         """Pose hypotheses for tuples (T, L) of database indices."""
-        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals)
+        return optimize_step.optimize(self.points, contacts, tuples, self.settings.optimize, self.normals,
+                                      sensors=self.settings.sensors)
 
     def rank(self, T_world_sensors, poses: np.ndarray, losses: np.ndarray,
              contacts: Contacts | None = None) -> ranking.RankedPoses:
@@ -337,7 +339,7 @@ class Estimator:
         contacts: as ``contacts`` returned (default: the sensors' landmarks)."""
         poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
         return rank_step.rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses,
-                              self.settings.rank, self.surface, contacts, self.mesh)
+                              self.settings.rank, self.surface, contacts, self.mesh, sensors=self.settings.sensors)
 
     def estimate(self, T_world_sensors, images=None, backgrounds=None) -> Estimate:
         """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.

@@ -36,6 +36,13 @@ rotation the points leave free (start: the unit-weight combined Kabsch); for L =
 rotation is turned by the smallest rotation that carries R0 n onto m, t = s - R p. The reported loss
 is E_n, so the ranking prefers hypotheses whose normals agree.
 
+Contacts known only to a noise (``noise`` = (sigma_d m, sigma_a rad), from ``sensors.pose_sigma_*``: sensor
+poses that are off move every contact by about sigma_d): the IRLS weights become 1 / max(||r_i||, sigma_d)
+(and lambda / max(||m_i - R n_i||, sigma_a)), so residuals below the noise are fitted in least squares,
+as Gaussian noise asks, instead of one of them being pulled to zero as the plain distances do; residuals
+above it keep the robust weight. This minimises the Huber-like sum of rho(r) = r^2 / (2 sigma) + sigma / 2
+below sigma, r above; the loss reported is E (or E_n) all the same, so the ranking's scale does not change.
+
 Both return ``PoseHypotheses``: poses (P, 4, 4) float64, losses (P,) m, tuple_index (P,).
 
 ``fast`` is the default: on synthetic scenes its loss was never above gd's, and it is much faster
@@ -167,19 +174,22 @@ def fit_fast(
     n_irls: int,
     normals: tuple[np.ndarray, np.ndarray] | None = None,
     normal_weight: float = 0.0,
+    noise: tuple[float, float] = (0.0, 0.0),
 ) -> PoseHypotheses:
     """The fast solver (module docstring), one pose per tuple.
 
     object_points (N, L, 3) object frame, sensor_points (L, 3) world, rotations (N, 3, 3) the tuples'
     random rotations (used for L < 3 only, L = 1 with normals), n_irls IRLS steps (L >= 3, or L = 2
     with normals) -> PoseHypotheses with P = N. normals: (object normals (N, L, 3), sensor contact
-    normals (L, 3)) and normal_weight lambda (m/rad) > 0 switch on the orientation-aware loss E_n.
+    normals (L, 3)) and normal_weight lambda (m/rad) > 0 switch on the orientation-aware loss E_n. noise:
+    (m, rad) the contacts' expected error, below which residuals are fitted in least squares.
     """
     p, s = _check(object_points, sensor_points)
+    floor_d, floor_a = (max(float(x), _IRLS_FLOOR) for x in noise)
     n, n_sensors = p.shape[:2]
     rotations = np.asarray(rotations, dtype=np.float64)
     if normals is not None and normal_weight > 0:
-        return _fit_fast_normals(p, s, rotations, n_irls, normals, float(normal_weight))
+        return _fit_fast_normals(p, s, rotations, n_irls, normals, float(normal_weight), floor_d, floor_a)
     if n_sensors == 1:
         poses = make_pose(rotations, s[0] - np.einsum("nab,nb->na", rotations, p[:, 0]))
     elif n_sensors == 2:
@@ -188,12 +198,12 @@ def fit_fast(
         poses = weighted_kabsch(p, s, np.ones((n, n_sensors)))
         for _ in range(n_irls):
             residual = np.linalg.norm(s[None] - (np.einsum("nab,nlb->nla", poses[:, :3, :3], p) + poses[:, None, :3, 3]), axis=-1)
-            poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, _IRLS_FLOOR))
+            poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, floor_d))
     return PoseHypotheses(poses, poses_to_losses(poses, p, s), np.arange(n))
 
 
-def _fit_fast_normals(p, s, rotations, n_irls, normals, lam) -> PoseHypotheses:
-    """fit_fast with the normal term (module docstring)."""
+def _fit_fast_normals(p, s, rotations, n_irls, normals, lam, floor_d, floor_a) -> PoseHypotheses:
+    """fit_fast with the normal term (module docstring); floor_d (m), floor_a (rad): the IRLS floors."""
     n_obj = np.asarray(normals[0], dtype=np.float64)
     m = np.asarray(normals[1], dtype=np.float64)
     n, n_sensors = p.shape[:2]
@@ -208,9 +218,10 @@ def _fit_fast_normals(p, s, rotations, n_irls, normals, lam) -> PoseHypotheses:
         for _ in range(n_irls):
             residual = np.linalg.norm(s[None] - (np.einsum("nab,nlb->nla", poses[:, :3, :3], p) + poses[:, None, :3, 3]), axis=-1)
             turned = np.linalg.norm(m[None] - np.einsum("nab,nlb->nla", poses[:, :3, :3], n_obj), axis=-1)
-            # The normal term's IRLS weight lambda / ||m - R n|| (a unitless residual, floored alike).
-            poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, _IRLS_FLOOR),
-                                    (n_obj, m, lam / np.maximum(turned, _IRLS_FLOOR)))
+            # The normal term's IRLS weight lambda / ||m - R n|| (a chord between unit vectors, about the angle
+            # between them for small angles, floored at the normals' expected error).
+            poses = weighted_kabsch(p, s, 1.0 / np.maximum(residual, floor_d),
+                                    (n_obj, m, lam / np.maximum(turned, floor_a)))
     losses = poses_to_losses(poses, p, s) + lam * normal_losses(poses, n_obj, m)
     return PoseHypotheses(poses, losses, np.arange(n))
 
@@ -360,6 +371,7 @@ def tuples_to_poses(
     normals: np.ndarray | None = None,
     sensor_normals: np.ndarray | None = None,
     normal_weight: float = 0.0,
+    noise: tuple[float, float] = (0.0, 0.0),
 ) -> PoseHypotheses:
     """Pose hypotheses for the selected tuples.
 
@@ -367,7 +379,8 @@ def tuples_to_poses(
     m), tuples (N, L) int indices into points, solver 'fast' or 'gd', rng draws one uniformly random
     rotation per tuple. gd uses n_steps, gain_t, gain_r, offset (m), the first n_translations (1-15)
     of ``initial_translations`` and precision; fast uses n_irls and, when normal_weight > 0, normals
-    (M, 3) the database normals and sensor_normals (L, 3) the sensors' contact normals (world).
+    (M, 3) the database normals and sensor_normals (L, 3) the sensors' contact normals (world), and
+    noise (m, rad): the contacts' expected error, the IRLS floor (module docstring; gd ignores it).
     """
     tuples = np.asarray(tuples)
     if tuples.ndim != 2 or tuples.shape[0] == 0:
@@ -379,8 +392,8 @@ def tuples_to_poses(
             if normals is None or sensor_normals is None:
                 raise InputError("optimize.normal_weight > 0 needs the database and sensor normals")
             pair = (np.asarray(normals, dtype=np.float64)[tuples], np.asarray(sensor_normals, dtype=np.float64))
-            return fit_fast(object_points, sensor_points, rotations, n_irls, pair, normal_weight)
-        return fit_fast(object_points, sensor_points, rotations, n_irls)
+            return fit_fast(object_points, sensor_points, rotations, n_irls, pair, normal_weight, noise)
+        return fit_fast(object_points, sensor_points, rotations, n_irls, noise=noise)
     if solver == "gd":
         if not 1 <= n_translations <= len(TRANSLATION_DIRECTIONS):
             raise InputError(f"n_translations must be 1..{len(TRANSLATION_DIRECTIONS)}, got {n_translations}")

@@ -31,7 +31,7 @@ ranking scores refined poses (``estimator.rank``).
 
 Sensor poses from a robot's forward kinematics are off by millimetres and degrees, so the contacts read
 through them are too, each sensor by its own error, and no single object pose makes every sensor touch.
-``refine_poses_and_sensors`` (used when ``rank.pose_sigma_mm``/``_deg`` are set) lets each sensor see the
+``refine_poses_and_sensors`` (used unless ``sensors.pose_sigma_mm``/``_deg`` declare the poses exact) lets each sensor see the
 object through a small correction of its own, under a Gaussian prior of the sensor poses' expected error:
 what no object pose explains goes to the sensors, at a cost ``sensor_corrections_cost`` that the ranking
 adds to the score.

@@ -27,6 +27,15 @@ method and Beyond the paper), so the tuple of the points nearest the true contac
 The threshold is found by doubling from ``step_up`` then bisecting, each probe a pruned join that
 stops once it has seen more than 4 ``n_max`` tuples; the product is never materialised.
 
+Sensor poses that are off (``sensors.pose_sigma_*``, ``settings.SensorSettings``): the sensors' pair
+distances are then off too, by up to ``tolerance`` (m), so a threshold below it could drop the true
+tuple for no better reason than the kinematics' noise. Under the adaptive rule the threshold is never
+lowered below ``tolerance``: when it stops lower, the ``n_max`` lowest-error tuples below ``tolerance``
+are kept instead (all of them when fewer). Rule ``best_n`` keeps its ``n_max`` lowest whatever the
+tolerance, which is the same set: it only ever stops below the tolerance with exactly ``n_max``.
+The normal check's tolerance widens by how far the sensors' turns move the pair angles
+(``steps.select``).
+
 Normal consistency (``select.normal_tol_deg``, optional): each sensor's +x axis is the inward surface
 normal at its contact, so the database normals of a plausible tuple must be carried onto the sensors'
 contact normals by one rotation. A necessary condition checked per sensor pair (a, b) is that the
@@ -464,6 +473,7 @@ def select_tuples(
     rng: np.random.Generator,
     rule: str = "paper",
     normals: NormalCheck | None = None,
+    tolerance: float = 0.0,
 ) -> DistanceSelection:
     """Distance-based selection with the adaptive threshold (module docstring).
 
@@ -473,7 +483,9 @@ def select_tuples(
     for L = 1, where every point of Omega_1 is a tuple (error 0) and, if there are more than n_max, a
     uniformly random n_max of them are kept. rule: 'paper' (the adaptive delta_d) or 'best_n' (the
     n_max tuples of lowest error below delta_max; delta_d is then the largest kept error); normals:
-    the optional normal-consistency test (``NormalCheck``; a test of pairs, so unused for L = 1).
+    the optional normal-consistency test (``NormalCheck``; a test of pairs, so unused for L = 1);
+    tolerance: m, how far the sensors' pair distances may be off (their poses' error,
+    ``SensorSettings.pair_distance_tolerance``): the adaptive threshold is never lowered below it.
 
     Raises NoMatch when no tuple passes even at ``delta_max`` (sensors farther apart, or closer,
     than any pair of database points allows).
@@ -481,6 +493,8 @@ def select_tuples(
     points, s, omegas = _check_inputs(points, sensor_points, omegas)
     if n_max < 1 or not (delta_start > 0 and step_down > 0 and step_up > 0 and delta_max >= delta_start):
         raise InputError("need n_max >= 1, positive steps and delta_max >= delta_start > 0")
+    if not tolerance >= 0:
+        raise InputError(f"the pair-distance tolerance must be >= 0 m, got {tolerance}")
     if rule not in DELTA_D_RULES:
         raise InputError(f"unknown delta_d rule {rule!r} ({' or '.join(DELTA_D_RULES)})")
     if s.shape[0] == 1:
@@ -532,6 +546,10 @@ def select_tuples(
                     break
             m += 1
 
+    if delta < tolerance:
+        # Stopped below what the sensor poses' error can explain: the n_max lowest below the tolerance (a
+        # superset of what was found, all of whose errors are below delta).
+        return _best_n(join, n_max, step_up, min(tolerance, delta_max), s.shape[0] * (s.shape[0] - 1) // 2)
     tuples, errors = found
     capped = tuples.shape[0] > n_max
     # The n_max lowest errors (all of them when not capped), ties broken by index order.

@@ -1,4 +1,4 @@
-"""The estimator's settings: the ``select``, ``optimize`` and ``rank`` config sections as checked,
+"""The estimator's settings: the ``select``, ``optimize``, ``rank`` and ``sensors`` config sections as checked,
 frozen dataclasses. Each section's keys are documented in its conf/<section>/default.yaml; this module
 holds no defaults of its own, so a missing key is a ConfigError naming it.
 """
@@ -25,6 +25,68 @@ def _fields(section: Mapping, cls) -> dict:
     if missing:
         raise ConfigError(f"config section for {cls.__name__} lacks keys {missing}")
     return {n: section[n] for n in names}
+
+
+@dataclass(frozen=True)
+class SensorSettings:
+    """The ``sensors`` config section (conf/sensors/default.yaml): how far the sensor poses handed to the
+    estimator may be off, as a robot's forward kinematics gives them. Per axis, one standard deviation, in
+    each sensor's own frame; 0 and 0 declare the poses exact (simulation, the paper's method).
+
+    Every step reads the same error through the quantities below: selection's pair-distance and
+    normal tolerances, the fit's noise floor, the refinement's prior on each sensor's correction and the
+    ranking's penetration allowance.
+    """
+
+    pose_sigma_mm: float
+    pose_sigma_deg: float
+
+    @classmethod
+    def from_cfg(cls, section: Mapping) -> SensorSettings:
+        out = cls(**_fields(section, cls))
+        if not (out.pose_sigma_mm >= 0 and out.pose_sigma_deg >= 0):
+            raise ConfigError(f"sensors.pose_sigma_mm and sensors.pose_sigma_deg must be >= 0, "
+                              f"got {out.pose_sigma_mm}, {out.pose_sigma_deg}")
+        return out
+
+    @property
+    def exact(self) -> bool:
+        """Whether the sensor poses are declared exact (both sigmas 0)."""
+        return self.contact_sigma == 0
+
+    @property
+    def contact_sigma(self) -> float:
+        """m, per axis: how far a sensor's contact point is off when its pose is off by ``pose_sigma_mm``
+        and ``pose_sigma_deg``: the translation error and the rotation's at the gel (``sensor.GEL_CENTER``'s
+        distance from the sensor's origin), combined in quadrature. Also how deep a true pose appears to
+        press into such a sensor: the ranking's penetration allowance."""
+        lever = float(np.linalg.norm(GEL_CENTER))
+        return float(np.hypot(1e-3 * self.pose_sigma_mm, lever * np.radians(self.pose_sigma_deg)))
+
+    @property
+    def angle_sigma(self) -> float:
+        """rad, per axis: how far a sensor (and its contact normal) is turned."""
+        return float(np.radians(self.pose_sigma_deg))
+
+    @property
+    def pair_distance_tolerance(self) -> float:
+        """m: how far the distance between two sensors' contact points may be off, two standard deviations.
+        Two contact points each off by ``contact_sigma`` per axis move apart, along the line between them,
+        by a Gaussian of standard deviation sqrt(2) contact_sigma."""
+        return 2.0 * np.sqrt(2.0) * self.contact_sigma
+
+    @property
+    def pair_angle_tolerance(self) -> float:
+        """rad: how far an angle between two sensors' contact normals (or a normal and the line between
+        the contacts) may be off, two standard deviations: sqrt(2) angle_sigma for two sensors."""
+        return 2.0 * np.sqrt(2.0) * self.angle_sigma
+
+    @property
+    def correction_sigmas(self) -> tuple[float, float]:
+        """The refinement's prior on each sensor's correction: (m, rad), the shift of its contact point and
+        its turn, one standard deviation per axis. A sigma of 0 is taken as a thousandth of a millimetre or
+        degree: that part of the pose is as good as exact."""
+        return max(self.contact_sigma, 1e-6), float(np.radians(max(self.pose_sigma_deg, 1e-3)))
 
 
 @dataclass(frozen=True)
@@ -163,8 +225,6 @@ class RankSettings:
     agreement_depth_weight: float
     agreement_free_area_weight: float
     agreement_free_depth_weight: float
-    pose_sigma_mm: float
-    pose_sigma_deg: float
     pose_correction_weight: float
 
     @classmethod
@@ -183,34 +243,11 @@ class RankSettings:
                    out.agreement_depth_weight, out.agreement_free_area_weight, out.agreement_free_depth_weight)
         if min(weights) < 0:
             raise ConfigError(f"rank.agreement_* weights and margin must be >= 0, got {weights}")
-        if not (out.pose_sigma_mm >= 0 and out.pose_sigma_deg >= 0 and out.pose_correction_weight >= 0):
-            raise ConfigError(f"rank.pose_sigma_mm, rank.pose_sigma_deg and rank.pose_correction_weight must be >= 0, "
-                              f"got {out.pose_sigma_mm}, {out.pose_sigma_deg}, {out.pose_correction_weight}")
+        if not out.pose_correction_weight >= 0:
+            raise ConfigError(f"rank.pose_correction_weight must be >= 0, got {out.pose_correction_weight}")
         if out.agreement_step < 1 or 240 % out.agreement_step or 320 % out.agreement_step:
             raise ConfigError(f"rank.agreement_step must divide 240 and 320, got {out.agreement_step}")
         return out
-
-    @property
-    def penetration_allowance(self) -> float:
-        """m of penetration a pose's score does not pay for: how deep a true pose appears to press into a
-        sensor whose pose is off by ``pose_sigma_mm`` and ``pose_sigma_deg`` (per axis, one standard
-        deviation): the translation error along the gel's normal and the rotation's error at the gel
-        (``sensor.GEL_CENTER``'s distance from the sensor's origin), combined in quadrature."""
-        lever = float(np.linalg.norm(GEL_CENTER))
-        return float(np.hypot(1e-3 * self.pose_sigma_mm, lever * np.radians(self.pose_sigma_deg)))
-
-    @property
-    def corrects_sensors(self) -> bool:
-        """Whether the refinement estimates each sensor's small pose error beside the object's pose
-        (``refine.refine_poses_and_sensors``): when the sensor poses are not declared exact."""
-        return self.refine and self.penetration_allowance > 0
-
-    @property
-    def sensor_sigmas(self) -> tuple[float, float]:
-        """The prior of the sensor corrections: (m, rad), the shift of a sensor's contact point
-        (``penetration_allowance``) and its turn, one standard deviation per axis. A sigma of 0 is taken
-        as a thousandth of a millimetre or degree: that part of the pose is as good as exact."""
-        return max(self.penetration_allowance, 1e-6), float(np.radians(max(self.pose_sigma_deg, 1e-3)))
 
     @property
     def uses_agreement(self) -> bool:
@@ -225,20 +262,28 @@ class RankSettings:
 
 @dataclass(frozen=True)
 class Settings:
-    """All the estimator reads from the config: the select, optimize and rank sections."""
+    """All the estimator reads from the config: the select, optimize, rank and sensors sections."""
 
     select: SelectSettings
     optimize: OptimizeSettings
     rank: RankSettings
+    sensors: SensorSettings
 
     @classmethod
     def from_cfg(cls, cfg: Mapping) -> Settings:
-        missing = [k for k in ("select", "optimize", "rank") if k not in cfg]
+        missing = [k for k in ("select", "optimize", "rank", "sensors") if k not in cfg]
         if missing:
             raise ConfigError(f"config lacks sections {missing}")
         return cls(
             SelectSettings.from_cfg(cfg["select"]),
             OptimizeSettings.from_cfg(cfg["optimize"]),
             RankSettings.from_cfg(cfg["rank"]),
+            SensorSettings.from_cfg(cfg["sensors"]),
         )
+
+    @property
+    def corrects_sensors(self) -> bool:
+        """Whether the refinement estimates each sensor's small pose error beside the object's pose
+        (``refine.refine_poses_and_sensors``): refinement on and the sensor poses not declared exact."""
+        return self.rank.refine and not self.sensors.exact
 

@@ -144,7 +144,7 @@ def test_penetrating_pose_ranks_below_a_touching_one():
     np.testing.assert_array_equal(ranked.index, [1, 0])
     np.testing.assert_allclose(ranked.scores, [0.002, 0.001 + 0.0034], atol=1e-6)
     assert ranked.penetrations.shape == (2, 3)
-    # With an allowance of the sensor poses' expected error (rank.pose_sigma_*), a penetration within it
+    # With an allowance of the sensor poses' expected error (sensors.pose_sigma_*), a penetration within it
     # costs nothing: the lower loss wins; the depths reported stay the penetrations themselves.
     allowed = rk.rank_poses(np.stack([shifted, T_true]), np.array([0.001, 0.002]), score, 2, 0.001, 0.01,
                             allowance=0.0035)
@@ -156,11 +156,11 @@ def test_penetrating_pose_ranks_below_a_touching_one():
 def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
     from tactile6d.config import compose_config
     from tactile6d.sensor import GEL_CENTER
-    from tactile6d.settings import RankSettings
+    from tactile6d.settings import SensorSettings
 
     def allowance(mm, deg):
-        return RankSettings.from_cfg(compose_config([f"rank.pose_sigma_mm={mm}", f"rank.pose_sigma_deg={deg}"]).rank
-                                     ).penetration_allowance
+        return SensorSettings.from_cfg(compose_config([f"sensors.pose_sigma_mm={mm}",
+                                                       f"sensors.pose_sigma_deg={deg}"]).sensors).contact_sigma
 
     assert allowance(0, 0) == 0.0 and allowance(1.5, 0) == pytest.approx(0.0015)
     assert allowance(0, 1.0) == pytest.approx(np.linalg.norm(GEL_CENTER) * np.radians(1.0))
@@ -170,24 +170,27 @@ def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
 
 def test_the_sensor_pose_sigmas_switch_the_sensor_corrections():
     from tactile6d.config import compose_config
-    from tactile6d.settings import RankSettings
+    from tactile6d.settings import Settings
 
     def settings(*overrides):
-        return RankSettings.from_cfg(compose_config(list(overrides)).rank)
+        return Settings.from_cfg(compose_config(list(overrides)))
 
     default = settings()
     # The default is a hand's kinematics, not exact poses; the paper's method takes the poses as exact.
-    assert default.pose_sigma_mm > 0 and default.pose_sigma_deg > 0 and default.corrects_sensors
-    assert default.sensor_sigmas == pytest.approx((default.penetration_allowance, np.radians(default.pose_sigma_deg)))
+    sensors = default.sensors
+    assert sensors.pose_sigma_mm > 0 and sensors.pose_sigma_deg > 0 and default.corrects_sensors
+    assert sensors.correction_sigmas == pytest.approx((sensors.contact_sigma, np.radians(sensors.pose_sigma_deg)))
     paper = settings("preset=paper")
-    assert paper.penetration_allowance == 0.0 and not paper.corrects_sensors
-    assert not settings("rank.pose_sigma_mm=0", "rank.pose_sigma_deg=0").corrects_sensors
+    assert paper.sensors.exact and paper.sensors.contact_sigma == 0.0 and not paper.corrects_sensors
+    assert not settings("sensors.pose_sigma_mm=0", "sensors.pose_sigma_deg=0").corrects_sensors
     assert not settings("rank.refine=false").corrects_sensors
     # One sigma alone still corrects; the other part of the pose is then held (nearly) exact.
-    only_mm = settings("rank.pose_sigma_mm=1", "rank.pose_sigma_deg=0")
-    assert only_mm.corrects_sensors and only_mm.sensor_sigmas[1] < np.radians(0.01)
+    only_mm = settings("sensors.pose_sigma_mm=1", "sensors.pose_sigma_deg=0")
+    assert only_mm.corrects_sensors and only_mm.sensors.correction_sigmas[1] < np.radians(0.01)
     with pytest.raises(Exception, match="pose_correction_weight"):
         settings("rank.pose_correction_weight=-1")
+    with pytest.raises(Exception, match="sensors.pose_sigma_mm"):
+        settings("sensors.pose_sigma_mm=-1")
 
 
 def test_lazy_ranking_equals_scoring_everything():

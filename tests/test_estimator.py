@@ -62,11 +62,11 @@ def world():
 LANDMARK_CONTACTS = {"select.contacts": "landmark", "rank.agreement_weight": 0.0}
 # Sensor poses declared exact (the synthetic worlds' are): no penetration allowance and no sensor corrections,
 # so that a score is the paper's, loss + deepest penetration.
-EXACT_POSES = {"rank.pose_sigma_mm": 0, "rank.pose_sigma_deg": 0}
+EXACT_POSES = {"sensors.pose_sigma_mm": 0, "sensors.pose_sigma_deg": 0}
 
 
 def settings(**overrides):
-    """conf/'s select/optimize/rank sections with landmark contacts and ``section.key=value`` overrides."""
+    """conf/'s select/optimize/rank/sensors sections with landmark contacts and ``section.key=value`` overrides."""
     overrides = {**LANDMARK_CONTACTS, **overrides}
     return Settings.from_cfg(compose_config([f"{k}={v}" for k, v in overrides.items()]))
 

@@ -154,7 +154,7 @@ def test_the_box_of_the_right_width_wins_over_wider_and_narrower_ones(squeezed, 
     assert identify().best.name == "box_100mm"
     encoder.calls = 0
     # The squeeze's sensor poses are exact and declared so: the right width wins outright.
-    result = identify(**{"rank.pose_sigma_mm": 0, "rank.pose_sigma_deg": 0})
+    result = identify(**{"sensors.pose_sigma_mm": 0, "sensors.pose_sigma_deg": 0})
     assert result.best.name == "box_100mm"
     assert result.best.probability > 0.9
     assert sum(o.probability for o in result.objects) == pytest.approx(1.0)

@@ -254,3 +254,53 @@ def test_normal_term_prefers_the_tuple_whose_normals_agree():
     assert fit.losses[0] < 1e-6 and fit.losses[1] > 1e-3
     with pytest.raises(InputError):
         opt.tuples_to_poses(p, s, np.array([[0, 1, 2]]), "fast", rng, normal_weight=0.01)
+
+
+def _least_squares_pose(p, s):
+    """The naive least-squares rigid fit (Arun et al.'s SVD, reflection guarded): the reference for a fit
+    whose residuals are all below the noise floor."""
+    pc, sc = p - p.mean(0), s - s.mean(0)
+    u, _, vt = np.linalg.svd(sc.T @ pc)
+    d = np.sign(np.linalg.det(u @ vt))
+    R = u @ np.diag([1.0, 1.0, d]) @ vt
+    return g.make_pose(R, s.mean(0) - R @ p.mean(0))
+
+
+def test_residuals_below_the_noise_floor_are_fitted_in_least_squares():
+    rng = np.random.default_rng(7)
+    for n_sensors in (3, 4):
+        p, s, _ = _scene(rng, n_sensors, noise=0.002)
+        rotations = np.eye(3)[None]
+        # A floor above every residual: every IRLS weight is the same, the fit is least squares.
+        floored = opt.fit_fast(p[None], s, rotations, n_irls=5, noise=(0.05, 0.0))
+        np.testing.assert_allclose(floored.poses[0], _least_squares_pose(p, s), atol=1e-12)
+        # The loss reported is still the paper's mean of plain distances, at that pose.
+        assert floored.losses[0] == pytest.approx(opt.poses_to_losses(floored.poses, p[None], s)[0])
+        # No noise: the plain-distance IRLS as before, which reaches a lower E than least squares.
+        plain = opt.fit_fast(p[None], s, rotations, n_irls=5)
+        np.testing.assert_array_equal(opt.fit_fast(p[None], s, rotations, n_irls=5, noise=(0.0, 0.0)).poses, plain.poses)
+        assert plain.losses[0] < floored.losses[0]
+        # A floor between: residuals under it weigh alike, those above it less, so the fit lies between.
+        some = opt.fit_fast(p[None], s, rotations, n_irls=5, noise=(0.001, 0.0))
+        assert plain.losses[0] <= some.losses[0] <= floored.losses[0] + 1e-12
+
+
+def test_the_optimize_step_floors_the_fit_at_the_sensors_contact_error():
+    from tactile6d.contacts import Contacts
+    from tactile6d.settings import OptimizeSettings, SensorSettings
+    from tactile6d.config import default_section
+    from tactile6d.steps.optimize import optimize
+
+    rng = np.random.default_rng(8)
+    p, s, _ = _scene(rng, 3, noise=0.002)
+    contacts = Contacts(s, np.tile([0.0, 0.0, -1.0], (3, 1)), np.zeros(3, bool))
+    settings = OptimizeSettings.from_cfg(default_section("optimize"))
+
+    def fit(mm, deg):
+        sensors = SensorSettings.from_cfg({"pose_sigma_mm": mm, "pose_sigma_deg": deg})
+        return optimize(p, contacts, np.arange(3)[None], settings, sensors=sensors).poses[0]
+
+    # Exact sensor poses: the paper's plain-distance IRLS; sensor poses off by 20 mm (a floor above every
+    # residual here): least squares.
+    np.testing.assert_allclose(fit(0, 0), opt.fit_fast(p[None], s, np.eye(3)[None], settings.n_irls).poses[0], atol=1e-12)
+    np.testing.assert_allclose(fit(20, 0), _least_squares_pose(p, s), atol=1e-12)

@@ -344,3 +344,89 @@ def test_normal_check_keeps_the_true_tuple_and_drops_one_with_incompatible_norma
                                 normals=sel.NormalCheck(flipped, m, np.radians(15.0)), **SELECT)
     assert not any(np.array_equal(row, true) for row in dropped.tuples)
     assert np.all(sel.tuples_normal_consistent(points, s, kept.tuples, check))
+
+
+# --- the sensor poses' error (sensors.pose_sigma_*) ----------------------------------------------
+
+
+def test_the_paper_rule_never_lowers_the_threshold_below_the_tolerance():
+    # The scene of test_best_n_keeps_the_nearest_tuple_that_the_paper_rule_drops: the paper's rule stops at
+    # 0.5 mm (592 tuples; at 1 mm, its next step up, 5009 pass). With sensor poses that may be off by 0.8 mm,
+    # the threshold stays there: every tuple below it (2470), a superset of the paper's.
+    rng = np.random.default_rng(12)
+    points, true, s = _scene(rng, 600, 3, noise=0.002)
+    omegas = sel.all_points_omegas(600, 3)
+    paper = sel.select_tuples(points, s, omegas, 5000, rng=rng, **SELECT)
+    assert paper.delta_d == pytest.approx(5e-4) and not paper.capped
+    tolerant = sel.select_tuples(points, s, omegas, 5000, rng=rng, tolerance=8e-4, **SELECT)
+    within = sel.tuples_within(points, s, omegas, 8e-4)[0]
+    np.testing.assert_array_equal(tolerant.tuples, within)
+    assert set(map(tuple, paper.tuples)) < set(map(tuple, tolerant.tuples)) and not tolerant.capped
+    # More than N below the tolerance (the true tuple's error, 1.5 mm, is below 2 mm): the N lowest, as
+    # best_n keeps them; with N large enough, the true tuple among them.
+    capped = sel.select_tuples(points, s, omegas, 5000, rng=rng, tolerance=0.002, **SELECT)
+    best = sel.select_tuples(points, s, omegas, 5000, rng=rng, rule="best_n", **SELECT)
+    assert capped.capped and capped.tuples.shape[0] == 5000
+    np.testing.assert_array_equal(capped.tuples, best.tuples)
+    e_true = sel.tuples_to_errors(points, s, true[None])[0]
+    n_below = sel.tuples_within(points, s, omegas, 0.002)[0].shape[0]
+    assert e_true < 0.002
+    enough = sel.select_tuples(points, s, omegas, n_below, rng=rng, tolerance=0.002, **SELECT)
+    assert any(np.array_equal(row, true) for row in enough.tuples)
+    assert not any(np.array_equal(row, true) for row in paper.tuples)
+    # A tolerance below where the rule stops changes nothing; best_n keeps its N lowest whatever the tolerance.
+    low = sel.select_tuples(points, s, omegas, 5000, rng=rng, tolerance=paper.delta_d / 2, **SELECT)
+    np.testing.assert_array_equal(low.tuples, paper.tuples)
+    best_tolerant = sel.select_tuples(points, s, omegas, 5000, rng=rng, rule="best_n", tolerance=0.002, **SELECT)
+    np.testing.assert_array_equal(best_tolerant.tuples, best.tuples)
+    with pytest.raises(InputError, match="tolerance"):
+        sel.select_tuples(points, s, omegas, 5000, rng=rng, tolerance=-1e-3, **SELECT)
+
+
+def test_the_pose_sigma_settings_set_the_tolerances_as_documented():
+    from tactile6d.config import compose_config
+    from tactile6d.sensor import GEL_CENTER
+    from tactile6d.settings import SensorSettings
+
+    def sensors(mm, deg):
+        cfg = compose_config([f"sensors.pose_sigma_mm={mm}", f"sensors.pose_sigma_deg={deg}"])
+        return SensorSettings.from_cfg(cfg.sensors)
+
+    lever = np.linalg.norm(GEL_CENTER)
+    # A contact point is off by hypot(mm, lever x deg) per axis; two of them by sqrt(2) that along the line
+    # between them; the tolerance is two standard deviations.
+    assert sensors(1.5, 1.5).pair_distance_tolerance == pytest.approx(
+        2 * np.sqrt(2) * np.hypot(0.0015, lever * np.radians(1.5)))
+    assert sensors(3, 0).pair_distance_tolerance == pytest.approx(2 * np.sqrt(2) * 0.003)
+    assert sensors(1.5, 1.5).pair_angle_tolerance == pytest.approx(2 * np.sqrt(2) * np.radians(1.5))
+    assert sensors(0, 0).pair_distance_tolerance == 0 and sensors(0, 0).pair_angle_tolerance == 0
+    assert sensors(0, 0).exact and not sensors(0, 0.5).exact
+    # Monotone in both sigmas.
+    assert sensors(1, 1).pair_distance_tolerance < sensors(2, 1).pair_distance_tolerance < sensors(2, 2).pair_distance_tolerance
+
+
+def test_the_select_step_widens_the_normal_check_by_the_sensors_turn():
+    from tactile6d.config import compose_config
+    from tactile6d.contacts import Contacts
+    from tactile6d.settings import SelectSettings, SensorSettings
+    from tactile6d.steps.select import select
+
+    # Two contacts on a box's top face 6 cm apart, both normals straight down the face's normal; the
+    # database's points carry normals turned 47 deg and 0 deg: a pair angle 47 deg off, beyond the 45 deg
+    # tolerance with exact sensor poses, within 45 + 2 sqrt(2) x 1.5 = 49.2 deg with a hand's kinematics.
+    tilt = np.radians(47.0)
+    points = np.array([[0.0, 0.0, 0.02], [0.06, 0.0, 0.02]])
+    normals = np.array([[np.sin(tilt), 0.0, np.cos(tilt)], [0.0, 0.0, 1.0]])
+    contacts = Contacts(points.copy(), -np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), np.zeros(2, bool))
+    cfg = compose_config(["select.method=baseline", "select.normal_tol_deg=45", "select.N=10"])
+    settings = SelectSettings.from_cfg(cfg.select)
+
+    def kept(mm, deg):
+        sensors = SensorSettings.from_cfg({"pose_sigma_mm": mm, "pose_sigma_deg": deg})
+        try:
+            return select(points, None, contacts, None, settings, normals, sensors=sensors).tuples.tolist()
+        except NoMatch:
+            return []
+
+    assert [0, 1] not in kept(0, 0)
+    assert [0, 1] in kept(1.5, 1.5)

@@ -11,7 +11,7 @@ import numpy as np
 
 from tactile6d import optimize as optimization
 from tactile6d.contacts import Contacts
-from tactile6d.settings import OptimizeSettings
+from tactile6d.settings import OptimizeSettings, SensorSettings
 
 
 def optimize(
@@ -20,10 +20,14 @@ def optimize(
     tuples: np.ndarray,
     settings: OptimizeSettings,
     normals: np.ndarray | None = None,
+    *,
+    sensors: SensorSettings,
 ) -> optimization.PoseHypotheses:
     """Pose hypotheses for the tuples: (P, 4, 4) poses, (P,) losses (m), tuple index.
 
-    contacts: the L sensors' contact points and normals (``tactile6d.contacts``); normals (M, 3): the database normals, needed when ``optimize.normal_weight`` > 0.
+    contacts: the L sensors' contact points and normals (``tactile6d.contacts``); normals (M, 3): the database
+    normals, needed when ``optimize.normal_weight`` > 0; sensors: how far the sensor poses may be off, whose
+    contact error (``SensorSettings.contact_sigma``, ``angle_sigma``) is the fast solver's noise floor.
     """
     return optimization.tuples_to_poses(
         points,
@@ -41,4 +45,5 @@ def optimize(
         normals=normals,
         sensor_normals=contacts.normals,
         normal_weight=settings.normal_weight_for(contacts.points.shape[0]),
+        noise=(sensors.contact_sigma, sensors.angle_sigma),
     )

@@ -18,7 +18,7 @@ from tactile6d.errors import InputError
 from tactile6d.io import read_artifact
 from tactile6d.meshes import unpack_pieces
 from tactile6d.object_artifacts import require
-from tactile6d.settings import RankSettings
+from tactile6d.settings import RankSettings, SensorSettings
 
 
 def rank(
@@ -30,11 +30,15 @@ def rank(
     surface=None,
     contacts: Contacts | None = None,
     mesh=None,
+    *,
+    sensors: SensorSettings,
 ) -> ranking.RankedPoses:
     """The top-k distinct poses by loss + deepest sensor penetration (the paper's collision-aware ranking).
 
     model: the object's PenetrationModel; poses (P, 4, 4) ``T_world_object``; losses (P,) m; contacts:
-    the sensors' contacts (default: their landmarks, ``contacts.sensors_to_landmark_contacts``).
+    the sensors' contacts (default: their landmarks, ``contacts.sensors_to_landmark_contacts``); sensors:
+    how far ``T_world_sensors`` may be off (``SensorSettings``): that much penetration into a sensor costs
+    nothing (``ranking.penetration_cost``), and the refinement then corrects each sensor's pose too.
 
     With either of these on, the best ``candidates`` distinct poses ranked as above are re-scored
     (neither is in the paper):
@@ -71,7 +75,7 @@ def rank(
             partial(collision.poses_to_box_depth_bounds, pieces, T_world_sensor=T_world_sensors),
         ),
         batch=int(settings.batch),
-        allowance=settings.penetration_allowance,
+        allowance=sensors.contact_sigma,
     )
     if not (settings.refine or compare):
         return first
@@ -85,8 +89,8 @@ def rank(
         # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
         per_sensor = np.bincount(owners, minlength=len(s))[owners]
         extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
-        if settings.corrects_sensors:
-            sigma_contact, sigma_angle = settings.sensor_sigmas
+        if not sensors.exact:
+            sigma_contact, sigma_angle = sensors.correction_sigmas
             candidates, seen = refinement.refine_poses_and_sensors(
                 surface, candidates, s, n, sigma_contact, sigma_angle, n_iterations=int(settings.refine_iterations),
                 normal_weight=w, offset=offset, patch_points=extra, patch_weights=extra_w, patch_owners=owners)
@@ -100,7 +104,7 @@ def rank(
         depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
         scored_depths = depths if seen is None else seen_penetrations(model, seen, T_world_sensors)
         n_scored += len(candidates)
-    scores = new_losses + ranking.penetration_cost(scored_depths, settings.penetration_allowance)
+    scores = new_losses + ranking.penetration_cost(scored_depths, sensors.contact_sigma)
     scores = scores + settings.pose_correction_weight * correction_cost
     if compare:
         scores = scores + settings.agreement_weight * agreement_cost(

@@ -16,7 +16,7 @@ import numpy as np
 from tactile6d import selection
 from tactile6d.contacts import Contacts
 from tactile6d.errors import InputError
-from tactile6d.settings import SelectSettings
+from tactile6d.settings import SelectSettings, SensorSettings
 
 
 @dataclass(frozen=True)
@@ -45,13 +45,16 @@ def select(
     angles: np.ndarray | None,
     settings: SelectSettings,
     normals: np.ndarray | None = None,
+    *,
+    sensors: SensorSettings,
 ) -> Selection:
     """Tactile then distance selection; method 'baseline' skips the tactile part (all M points per sensor).
 
     points (M, 3) database points (object frame, m); db_angles (M,) their latent angles (rad; unused
     by the baseline); contacts: the L sensors' contact points and normals (``tactile6d.contacts``); angles (L,) the sensors' latent angles (rad; unused by
     the baseline); normals (M, 3) the points' outward normals, needed when ``select.normal_tol_deg``
-    is set (normal-consistent tuples only).
+    is set (normal-consistent tuples only); sensors: how far the sensor poses may be off, which widens
+    the distance and normal tolerances (``SensorSettings.pair_distance_tolerance``, ``pair_angle_tolerance``).
     """
     n_sensors = contacts.points.shape[0]
     check = None
@@ -59,7 +62,7 @@ def select(
         if normals is None:
             raise InputError("select.normal_tol_deg is set: the database normals are needed")
         check = selection.NormalCheck(np.asarray(normals, dtype=np.float64), contacts.normals,
-                                      float(np.radians(settings.normal_tol_deg)))
+                                      float(np.radians(settings.normal_tol_deg)) + sensors.pair_angle_tolerance)
     if settings.method == "ours":
         if db_angles is None or angles is None:
             raise InputError("method 'ours' needs the database's and the images' latent angles")
@@ -87,6 +90,7 @@ def select(
         rng=np.random.default_rng(settings.seed),
         rule=str(settings.delta_d_rule),
         normals=check,
+        tolerance=sensors.pair_distance_tolerance,
     )
     return Selection(
         tuples=chosen.tuples,
