@@ -36,12 +36,13 @@ rotation the points leave free (start: the unit-weight combined Kabsch); for L =
 rotation is turned by the smallest rotation that carries R0 n onto m, t = s - R p. The reported loss
 is E_n, so the ranking prefers hypotheses whose normals agree.
 
-Contacts known only to a noise (``noise`` = (sigma_d m, sigma_a rad), from ``sensors.pose_sigma_*``: sensor
-poses that are off move every contact by about sigma_d): the IRLS weights become 1 / max(||r_i||, sigma_d)
-(and lambda / max(||m_i - R n_i||, sigma_a)), so residuals below the noise are fitted in least squares,
-as Gaussian noise asks, instead of one of them being pulled to zero as the plain distances do; residuals
-above it keep the robust weight. This minimises the Huber-like sum of rho(r) = r^2 / (2 sigma) + sigma / 2
-below sigma, r above; the loss reported is E (or E_n) all the same, so the ranking's scale does not change.
+Contacts known only to a noise (``noise`` = (sigma_d m, sigma_a rad)): sensor poses that are off move every
+contact by about sigma_d. The IRLS weights then become 1 / max(||r_i||, sigma_d) (and lambda / max(||m_i -
+R n_i||, sigma_a)), so residuals below the noise are fitted in least squares, as Gaussian noise asks, instead
+of one of them being pulled to zero as the plain distances do; residuals above it keep the robust weight.
+This minimises the Huber-like sum of rho(r) = r^2 / (2 sigma) + sigma / 2 below sigma, r above; the loss
+reported is E (or E_n) all the same, so the ranking's scale does not change. ``optimize.noise_floor`` takes
+the noise from ``sensors.pose_sigma_*``; it is off by default (measured no gain: docs/real_sensors.md).
 
 Both return ``PoseHypotheses``: poses (P, 4, 4) float64, losses (P,) m, tuple_index (P,).
 

@@ -180,6 +180,7 @@ class OptimizeSettings:
     cpu_devices: int
     seed: int
     normal_weight: float
+    noise_floor: bool
     normal_max_sensors: int | None
 
     @classmethod
@@ -195,6 +196,11 @@ class OptimizeSettings:
                               f"{out.solver!r} set optimize.normal_weight=0 too (or use preset=paper)")
         _check_max_sensors("optimize", out.normal_max_sensors)
         return out
+
+    def noise_for(self, sensors: SensorSettings) -> tuple[float, float]:
+        """The fast solver's IRLS floor (m, rad): the contacts' expected error when ``noise_floor`` is on, else
+        (0, 0), the paper's plain distances."""
+        return (sensors.contact_sigma, sensors.angle_sigma) if self.noise_floor else (0.0, 0.0)
 
     def normal_weight_for(self, n_sensors: int) -> float:
         """The normal term's weight for an estimate from ``n_sensors`` sensors (0: positions only)."""

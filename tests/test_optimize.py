@@ -294,13 +294,18 @@ def test_the_optimize_step_floors_the_fit_at_the_sensors_contact_error():
     rng = np.random.default_rng(8)
     p, s, _ = _scene(rng, 3, noise=0.002)
     contacts = Contacts(s, np.tile([0.0, 0.0, -1.0], (3, 1)), np.zeros(3, bool))
-    settings = OptimizeSettings.from_cfg(default_section("optimize"))
+    settings = OptimizeSettings.from_cfg({**default_section("optimize"), "noise_floor": True})
 
-    def fit(mm, deg):
+    def fit(mm, deg, settings=settings):
         sensors = SensorSettings.from_cfg({"pose_sigma_mm": mm, "pose_sigma_deg": deg})
         return optimize(p, contacts, np.arange(3)[None], settings, sensors=sensors).poses[0]
 
     # Exact sensor poses: the paper's plain-distance IRLS; sensor poses off by 20 mm (a floor above every
     # residual here): least squares.
-    np.testing.assert_allclose(fit(0, 0), opt.fit_fast(p[None], s, np.eye(3)[None], settings.n_irls).poses[0], atol=1e-12)
+    plain = opt.fit_fast(p[None], s, np.eye(3)[None], settings.n_irls).poses[0]
+    np.testing.assert_allclose(fit(0, 0), plain, atol=1e-12)
     np.testing.assert_allclose(fit(20, 0), _least_squares_pose(p, s), atol=1e-12)
+    # The default leaves the floor off (not adopted): plain distances whatever the sensors' error.
+    default = OptimizeSettings.from_cfg(default_section("optimize"))
+    assert not default.noise_floor
+    np.testing.assert_allclose(fit(20, 0, default), plain, atol=1e-12)

@@ -27,7 +27,8 @@ def optimize(
 
     contacts: the L sensors' contact points and normals (``tactile6d.contacts``); normals (M, 3): the database
     normals, needed when ``optimize.normal_weight`` > 0; sensors: how far the sensor poses may be off, whose
-    contact error (``SensorSettings.contact_sigma``, ``angle_sigma``) is the fast solver's noise floor.
+    contact error (``SensorSettings.contact_sigma``, ``angle_sigma``) is the fast solver's noise floor when
+    ``optimize.noise_floor`` is on.
     """
     return optimization.tuples_to_poses(
         points,
@@ -45,5 +46,5 @@ def optimize(
         normals=normals,
         sensor_normals=contacts.normals,
         normal_weight=settings.normal_weight_for(contacts.points.shape[0]),
-        noise=(sensors.contact_sigma, sensors.angle_sigma),
+        noise=settings.noise_for(sensors),
     )
