@@ -240,10 +240,10 @@ def test_render_and_compare_ranks_the_true_pose_first_where_the_point_loss_ties(
     model = collision.PenetrationModel(collision.vertices_to_pieces([mesh.vertices]))
     # 3 mm apart: below the default 5 mm at which ranking drops the worse of two poses as a duplicate
     common = {"rank.refine": "false", "rank.candidates": 5, "rank.top_k": 2, "rank.dedup_translation": 0.002}
-    plain = rank_step.rank(model, sensors, poses, losses, settings(**common).rank, None, observed, mesh,
-                           sensors=settings(**common).sensors)
+    kinematics = settings(**common).sensors  # the default sensor-pose error
+    plain = rank_step.rank(model, sensors, poses, losses, settings(**common).rank, None, observed, mesh, sensors=kinematics)
     np.testing.assert_array_equal(plain.poses[0], shifted)
     rc = rank_step.rank(model, sensors, poses, losses, settings(**common, **{"rank.agreement_weight": 0.01}).rank,
-                        None, observed, mesh, sensors=settings(**common).sensors)
+                        None, observed, mesh, sensors=kinematics)
     np.testing.assert_array_equal(rc.poses[0], T_true)
     assert rc.scores[0] < rc.scores[1]
