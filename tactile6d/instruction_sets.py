@@ -4,10 +4,12 @@ x86-64 machines of the same kind differ: some have AVX-512, some AVX2 only. NumP
 (ATen's kernels and oneDNN's), MKL and XLA each pick their kernels for the CPU at start-up, and the
 AVX-512 kernels round differently: NumPy's float64 ``power``, ``exp``, ``log``, ``tan``, ``arccos``...
 (other implementations), OpenBLAS's LAPACK (SVD, solve, eigh), oneDNN's convolutions (other summation
-orders). Each variable below caps one library at AVX2, which every machine of this project has; measured
-on a 2-core AMD EPYC with AVX-512 (docs/reproducibility.md, Across machines): with them, the autoencoder's
-weights after a few training steps, the renderer's images and the paper's gradient descent equal those
-of the same library forced onto AVX2 bit for bit.
+orders). Each variable below caps one library at AVX2, which every machine of this project has, and MKL
+at the one branch it keeps on every vendor's CPU (Intel and AMD pick other MKL paths otherwise). Measured
+(docs/reproducibility.md, Across machines): with them, the autoencoder's weights after a few training
+steps, the renderer's images and the paper's gradient descent equal those of the same libraries forced
+onto AVX2 bit for bit, and those of this process disguised as another CPU (AMD Zen 3, or Intel without
+AVX-512 and with other cache sizes: ``scripts/cpu_disguise.py``).
 
 The variables take effect only when set before the libraries are imported, so ``pin()`` runs first in
 every stage (``stages/__init__.py``) and is inherited by their worker processes; Dask workers on other
@@ -31,9 +33,12 @@ XLA_FLAG = "--xla_cpu_max_isa=AVX2"  # JAX's compiled code
 # OpenBLAS's kernel: the AVX2 machines here pick Zen, whose results equal Haswell's; AVX-512 ones SkylakeX.
 # Set only when the environment has none (some machines set it to work around old OpenBLAS bugs).
 OPENBLAS_CORETYPE = "Haswell"
-# MKL (PyTorch's BLAS): conditional numerical reproducibility at the AVX2 level, for Intel AVX-512 CPUs
-# (on the AMD machines here MKL takes its AVX2 path anyway).
-MKL_CBWR = "AVX2"
+# MKL (PyTorch's BLAS): conditional numerical reproducibility on its COMPATIBLE branch (SSE2, without the
+# approximate rcpps/rsqrtps), the only branch MKL keeps on both Intel and AMD CPUs: on AMD it ignores
+# every other (AVX2 included) and takes its AUTO path, whose bits differ from Intel's. COMPATIBLE is the
+# lowest branch, so it replaces whatever the environment set. It costs nothing measurable here: the
+# autoencoder's large products are oneDNN's convolutions, MKL only does its two linear layers.
+MKL_CBWR = "COMPATIBLE"
 
 LIBRARIES = ("numpy", "torch", "jax", "cv2", "scipy")
 
@@ -52,7 +57,7 @@ def pinned_environment(environ: Mapping[str, str]) -> dict[str, str]:
     if not any(flag.startswith("--xla_cpu_max_isa") for flag in flags):
         env["XLA_FLAGS"] = " ".join([*flags, XLA_FLAG])
     env.setdefault("OPENBLAS_CORETYPE", OPENBLAS_CORETYPE)
-    env.setdefault("MKL_CBWR", MKL_CBWR)
+    env["MKL_CBWR"] = MKL_CBWR
     return env
 
 
