@@ -52,6 +52,8 @@ static void disguise(uint32_t leaf, uint32_t sub, uint32_t *a, uint32_t *b, uint
     if (leaf == 0x80000001) *c |= 1u << 22; /* TopologyExtensions: leaf 8000001Dh is valid */
     if (leaf == 0x80000005) { *a = *b = 0; *c = (32u << 24) | (8u << 16) | (1u << 8) | 64u; *d = *c; }
     if (leaf == 0x80000006) { *a = *b = 0; *c = (512u << 16) | (6u << 12) | (1u << 8) | 64u; *d = (64u << 18) | (8u << 12) | (1u << 8) | 64u; }
+    /* Intel answers leaves above its own last (80000008h) with its last basic leaf: report them empty. */
+    if (leaf > 0x80000008 && leaf <= 0x80000021) *a = *b = *c = *d = 0;
     if (leaf == 0x8000001D) amd_cache(sub, a, b, c, d);
 }
 

@@ -11,13 +11,12 @@ AVX-512 and with other cache sizes): the bits must equal this machine's, which i
 every CPU" asks of the stages; they are skipped where the kernel offers no CPUID faulting.
 """
 
+import importlib.util
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
-
-import importlib.util
 
 import pytest
 
