@@ -21,7 +21,7 @@ no CPUID faulting (the cpuid_fault flag of /proc/cpuinfo). */
 #include <ucontext.h>
 #include <unistd.h>
 
-static int amd, no_avx512, small_cache;
+static int amd, no_avx512, small_cache, active;  /* active: our SIGSEGV handler is installed */
 
 static long set_cpuid(int enabled) { return syscall(SYS_arch_prctl, ARCH_SET_CPUID, (unsigned long)enabled); }
 
@@ -82,7 +82,7 @@ static void on_segv(int sig, siginfo_t *info, void *context) {
 int sigaction(int sig, const struct sigaction *act, struct sigaction *old) {
     static int (*real)(int, const struct sigaction *, struct sigaction *);
     if (!real) real = (int (*)(int, const struct sigaction *, struct sigaction *))dlsym(RTLD_NEXT, "sigaction");
-    if (sig == SIGSEGV && getenv("CPUID_DISGUISE_ACTIVE")) {
+    if (sig == SIGSEGV && active) {
         if (old) *old = chained;
         if (act) chained = *act;
         return 0;
@@ -104,6 +104,6 @@ __attribute__((constructor)) static void start(void) {
     int (*real)(int, const struct sigaction *, struct sigaction *) =
         (int (*)(int, const struct sigaction *, struct sigaction *))dlsym(RTLD_NEXT, "sigaction");
     real(SIGSEGV, &sa, NULL);
-    setenv("CPUID_DISGUISE_ACTIVE", "1", 1);
+    active = 1;
     if (set_cpuid(0) != 0) { const char m[] = "cpuid_disguise: CPUID faulting not available\n"; write(2, m, sizeof m - 1); _exit(3); }
 }

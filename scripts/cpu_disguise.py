@@ -89,6 +89,12 @@ def probe() -> dict[str, object]:
     return {"vendor": vendor, "avx512f": bool(cpuid(7, 0)[1] >> 16 & 1)}
 
 
+def probe_command() -> list[str]:
+    """A command that prints ``probe()`` as one JSON line, for a (disguised) child process."""
+    return [sys.executable, "-c", f"import json, sys; sys.path.insert(0, {str(SOURCE.parent)!r}); "
+            "import cpu_disguise; print(json.dumps(cpu_disguise.probe()))"]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("disguise", choices=sorted(DISGUISES))
@@ -98,8 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     split = argv.index("--") if "--" in argv else len(argv)
     args, command = parser.parse_args(argv[:split]), argv[split + 1:]
     if args.probe:
-        command = [sys.executable, "-c", f"import json, sys; sys.path.insert(0, {str(SOURCE.parent)!r}); "
-                   "import cpu_disguise; print(json.dumps(cpu_disguise.probe()))"]
+        command = probe_command()
     if not command:
         parser.error("give a command after --, or --probe")
     if not supported():

@@ -131,7 +131,7 @@ def _disguised(name: str, shim, after_pin: dict[str, str] | None = None) -> dict
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(cpu_disguise.DISGUISES))
 def test_the_disguise_is_what_a_process_sees(name, disguise_shim):
-    out = subprocess.run([sys.executable, str(cpu_disguise.SOURCE.with_suffix(".py")), name, "--probe"],
+    out = subprocess.run(cpu_disguise.probe_command(), env=cpu_disguise.environment(name, disguise_shim, dict(os.environ)),
                          capture_output=True, text=True, check=True)
     seen = json.loads(out.stdout)
     assert seen["vendor"] == ("AuthenticAMD" if name.startswith("amd") else "GenuineIntel")
