@@ -43,7 +43,7 @@ reproduce: install
 
 # Refresh the committed params.yaml after editing conf/ (plain `dvc repro` reads params.yaml).
 params: install
-	$(BIN)/python -m tactile6d.config > params.yaml
+	$(BIN)/python -m tactile6d.core.config > params.yaml
 
 clean-venv:
 	rm -rf $(VENV)

@@ -22,12 +22,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import autoencoder, layout
-from tactile6d.config import compose_config
-from tactile6d.io import read_artifact
-from tactile6d.latent_gaps import triplet_gaps
-from tactile6d.settings import SelectSettings
-from tactile6d.steps.encode import centre_images, load_patch_model, read_contacts
+from tactile6d.core.config import compose_config
+from tactile6d.core.settings import SelectSettings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.evaluation.latent_gaps import triplet_gaps
+from tactile6d.perception import autoencoder
+from tactile6d.perception.encode import centre_images, load_patch_model, read_contacts
 
 
 def main() -> int:

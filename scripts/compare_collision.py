@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from tactile6d import meshes
-from tactile6d.config import compose_config
-from tactile6d.data import DataStore, group_files
+from tactile6d.core.config import compose_config
+from tactile6d.data.third_party import DataStore, group_files
+from tactile6d.sim import meshes
 
 
 def main() -> None:

@@ -26,9 +26,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import confidence, layout
-from tactile6d.io import read_artifact
-from tactile6d.object_artifacts import load_surface_points
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.data.object_artifacts import load_surface_points
+from tactile6d.estimation import confidence
 
 SETS = ("validation", "offaxis", "variation", "kinematic")
 RIVAL_DISTANCES = (0.003, 0.005, 0.0075, 0.01)  # m

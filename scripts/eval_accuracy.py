@@ -24,12 +24,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import contact, evaluation, layout, scenes
-from tactile6d.config import compose_config
-from tactile6d.estimator import Estimator
-from tactile6d.io import read_artifact
-from tactile6d.optimize import use_cpu_devices_for
-from tactile6d.sensor_subsets import ERROR_KEYS, estimate_and_score
+from tactile6d.core.config import compose_config
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.estimation.estimator import Estimator
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.evaluation import scoring
+from tactile6d.evaluation.sensor_subsets import ERROR_KEYS, estimate_and_score
+from tactile6d.sim import scenes, surface_sampling
 
 
 def proxy_scenes(artifacts: str, objects: list[str], per_object: int, seed: int) -> dict:
@@ -39,7 +41,7 @@ def proxy_scenes(artifacts: str, objects: list[str], per_object: int, seed: int)
     for o in objects:
         art = read_artifact(layout.object_file(artifacts, o), "object")
         meshes[o] = trimesh.Trimesh(art["vertices"], art["faces"], process=False)
-        surfaces[o] = contact.sample_surface(meshes[o])
+        surfaces[o] = surface_sampling.sample_surface(meshes[o])
         database[o] = read_artifact(layout.surface_file(artifacts, o), "surface")["points"]
     spec = scenes.ValidationSpec(scenes_per_object=per_object)
     out = scenes.generate_validation(objects, meshes, surfaces, database,
@@ -79,7 +81,7 @@ def main() -> int:
         obj = str(data["objects"][s])
         if obj not in estimators:
             estimators[obj] = Estimator.from_artifacts(obj, args.artifacts, cfg)
-            references[obj] = evaluation.load_object_reference(args.artifacts, obj)
+            references[obj] = scoring.load_object_reference(args.artifacts, obj)
         images = None if data["images"] is None else data["images"][s]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -94,7 +96,7 @@ def main() -> int:
             values.append(scored.errors[key])
         owners.append(obj)
     errors = {key: np.array(v) for key, v in rows.items()}
-    summary = evaluation.summarise_by_object(errors, np.array(owners))
+    summary = scoring.summarise_by_object(errors, np.array(owners))
     avg = {k: round(v, 3) for k, v in summary["average"].items() if k.endswith("top1")}
     step_medians = {k: round(float(np.median([st[k] for st in steps])), 3) for k in steps[0]} if steps else {}
     print(json.dumps({"scenes": set_name, "method": args.method, "overrides": args.overrides, "n": len(owners),

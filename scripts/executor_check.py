@@ -38,9 +38,9 @@ sys.path.insert(0, str(REPO))  # this checkout's tactile6d, not an installed one
 
 from omegaconf import OmegaConf  # noqa: E402
 
-from tactile6d import layout  # noqa: E402
-from tactile6d.config import compose_config  # noqa: E402
-from tactile6d.io import read_artifact, write_artifact  # noqa: E402
+from tactile6d.core.config import compose_config  # noqa: E402
+from tactile6d.data import layout  # noqa: E402
+from tactile6d.data.hdf5 import read_artifact, write_artifact  # noqa: E402
 
 
 def uptime() -> str:

@@ -2,7 +2,7 @@
 
     python scripts/identify_accuracy.py --artifacts artifacts --scenes offaxis [key=value ...]
 
-The identify stage's computation (``identifier.identify_scene_set``) under config overrides, without
+The identify stage's computation (``identification_accuracy.identify_scene_set``) under config overrides, without
 writing the stage's metrics: each scene is identified against every object of ``objects.names`` and
 ``identify.distractors``, with the weights of the calibrate_identify stage (or ``identify.weights=[...]``).
 Prints one line of JSON: the scene set, the overrides and the stage's figures (top-1, top-3, per-object
@@ -19,11 +19,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import evaluation, layout
-from tactile6d.config import compose_config
-from tactile6d.identifier import Identifier, identify_scene_set
-from tactile6d.io import read_artifact
-from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.core.config import compose_config
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.estimation.identifier import Identifier
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.evaluation import scoring
+from tactile6d.evaluation.identification_accuracy import identify_scene_set
 
 
 def main() -> int:
@@ -36,7 +38,7 @@ def main() -> int:
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     objects = [str(o) for o in cfg.objects.names]
     scenes = read_artifact(layout.scenes_file(args.artifacts, args.scenes), "scenes")
-    references = {o: evaluation.load_object_reference(args.artifacts, o) for o in objects}
+    references = {o: scoring.load_object_reference(args.artifacts, o) for o in objects}
     with Identifier.from_artifacts(objects, args.artifacts, cfg, distractors=list(cfg.identify.distractors)) \
             as identifier, warnings.catch_warnings():
         warnings.simplefilter("ignore")

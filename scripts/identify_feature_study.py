@@ -9,7 +9,7 @@ for every scene and object the ``CANDIDATE_FEATURES`` below (NaN: the object doe
 object's index and the library's names. It is the slow part (the screen of 40 scenes x 34 objects takes
 about 4 minutes on the 2-core machine).
 
-``fit`` fits the conditional-logit weights (``identification.fit_weights``) for each feature set of
+``fit`` fits the conditional-logit weights (``identity_model.fit_weights``) for each feature set of
 ``FEATURE_SETS`` and prints, as JSON lines, the top-1 and top-3 on every ``--on`` set: with weights fitted
 on the ``--fit`` sets' dumps, or, without ``--fit``, on all the other ``--on`` sets (leave one set out;
 the first weights printed are those of the first set's fit).
@@ -29,18 +29,19 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import agreement, identification, layout
-from tactile6d.config import compose_config
-from tactile6d.identifier import Identifier
-from tactile6d.inputs import check_sensor_poses
-from tactile6d.io import read_artifact
-from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.core.config import compose_config
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.estimation import identity_model, render_and_compare
+from tactile6d.estimation.identifier import Identifier
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.perception.inputs import check_sensor_poses
 
 # Per scene and object, of the object's screened estimate (lower should mean "more likely the object"):
 CANDIDATE_FEATURES = (
-    "loss",            # mm, the best pose's loss (identification.FEATURES)
-    "penetration",     # mm, its deepest press into a sensor body (identification.FEATURES)
-    "agreement",       # its render-and-compare cost (identification.FEATURES)
+    "loss",            # mm, the best pose's loss (identity_model.FEATURES)
+    "penetration",     # mm, its deepest press into a sensor body (identity_model.FEATURES)
+    "agreement",       # its render-and-compare cost (identity_model.FEATURES)
     "mask",            # 1 - IoU of rendered and observed patches, mean over sensors
     "depth",           # mm, depth residual inside the patches, mean over sensors
     "free_area",       # share of the gel pressed where the image shows no contact, mean over sensors
@@ -71,9 +72,9 @@ def candidate_features(ident: Identifier, name: str, T: np.ndarray, candidate) -
     estimate = candidate.estimate
     rank = est.settings.rank
     step = int(rank.agreement_step)
-    observed_mask = agreement.image_to_grid(estimate.contacts.masks, step) >= 0.5
-    observed_depth = agreement.image_to_grid(estimate.contacts.depths, step)
-    terms = agreement.poses_to_agreement(est.mesh, estimate.best[None], check_sensor_poses(T), observed_mask,
+    observed_mask = render_and_compare.image_to_grid(estimate.contacts.masks, step) >= 0.5
+    observed_depth = render_and_compare.image_to_grid(estimate.contacts.depths, step)
+    terms = render_and_compare.poses_to_agreement(est.mesh, estimate.best[None], check_sensor_poses(T), observed_mask,
                                          observed_depth, step, float(rank.agreement_free_margin))
     sel = estimate.selection
     diameter = float(np.linalg.norm(est.points.max(axis=0) - est.points.min(axis=0)))
@@ -120,7 +121,7 @@ def dump(args) -> None:
 
 
 def top_k(features: np.ndarray, truth: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
-    scores = identification.features_to_scores(features, weights)
+    scores = identity_model.features_to_scores(features, weights)
     rows = np.arange(len(truth))
     rank = (scores < scores[rows, truth][:, None]).sum(axis=1)  # ties count for the truth
     return float(np.mean(rank == 0)), float(np.mean(rank < 3))
@@ -143,7 +144,7 @@ def fit(args) -> None:
         for s, (f, t) in sets.items():
             features = np.concatenate([fitted[n][0][..., columns] for n in training[s]])
             truth = np.concatenate([fitted[n][1] for n in training[s]])
-            weights = identification.fit_weights(features, truth)
+            weights = identity_model.fit_weights(features, truth)
             tops[s] = top_k(f[..., columns], t, weights)
             row.setdefault("weights", [round(float(w), 3) for w in weights])
         row.update({s: [round(100 * a, 1), round(100 * b, 1)] for s, (a, b) in tops.items()})

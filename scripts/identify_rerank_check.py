@@ -24,12 +24,13 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import identification, layout
-from tactile6d.config import compose_config
-from tactile6d.errors import NoMatch
-from tactile6d.identifier import Identifier, estimate_encoded
-from tactile6d.io import read_artifact
-from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import NoMatch
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.estimation import identity_model
+from tactile6d.estimation.identifier import Identifier, estimate_encoded
+from tactile6d.estimation.optimize import use_cpu_devices_for
 
 
 def main() -> int:
@@ -52,7 +53,7 @@ def main() -> int:
             truth = str(scenes["objects"][s])
             T = scenes["T_world_sensors"][s]
             found, encoding = ident.candidates(T, scenes["images"][s])
-            scores = identification.features_to_scores(np.stack([c.features for c in found]), ident.weights)
+            scores = identity_model.features_to_scores(np.stack([c.features for c in found]), ident.weights)
             order = list(np.lexsort((np.arange(len(found)), scores)))  # scores: lower is better, inf: no match
             t0 = time.perf_counter()
             full_scores = {}
@@ -64,7 +65,7 @@ def main() -> int:
                 except NoMatch:
                     continue
                 features = ident.features(ident.full[found[i].name], T, estimate)
-                full_scores[i] = float(identification.features_to_scores(features[None], ident.weights)[0])
+                full_scores[i] = float(identity_model.features_to_scores(features[None], ident.weights)[0])
             extra_s.append(time.perf_counter() - t0)
             head = sorted(order[:args.top], key=lambda i: (full_scores.get(i, np.inf), order.index(i)))
             reranked = head + order[args.top:]

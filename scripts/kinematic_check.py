@@ -31,14 +31,16 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import evaluation, layout, metrics
-from tactile6d.collision import PenetrationModel
-from tactile6d.config import compose_config
-from tactile6d.contact import sample_surface
-from tactile6d.io import read_artifact
-from tactile6d.run_artifacts import expand_hypotheses, scene_contacts
-from tactile6d.settings import RankSettings, SensorSettings
-from tactile6d.steps.rank import load_mesh, load_pieces, rank
+from tactile6d.core import metrics
+from tactile6d.core.config import compose_config
+from tactile6d.core.settings import RankSettings, SensorSettings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.estimation.collision import PenetrationModel
+from tactile6d.estimation.rank import load_mesh, load_pieces, rank
+from tactile6d.estimation.run_storage import expand_hypotheses, scene_contacts
+from tactile6d.evaluation import scoring
+from tactile6d.sim.surface_sampling import sample_surface
 
 NEAREST = 50  # hypotheses, nearest the truth in position, whose ADI is measured
 
@@ -64,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         if obj not in loaded:
             mesh = load_mesh(art, obj)
             loaded[obj] = (PenetrationModel(load_pieces(art, obj)), mesh, sample_surface(mesh),
-                           evaluation.load_object_reference(art, obj))
+                           scoring.load_object_reference(art, obj))
         model, mesh, surface, ref = loaded[obj]
         T_true = scenes["T_world_object"][s]
         if ranked["n_poses"][s] and metrics.adi(ref.points, ranked["poses"][s][0], T_true, ref.tree) >= 0.01:

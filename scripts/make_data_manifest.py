@@ -1,10 +1,10 @@
-"""Regenerate ``tactile6d/data_manifest.json`` from a local data directory (developer tool).
+"""Regenerate ``tactile6d/data/data_manifest.json`` from a local data directory (developer tool).
 
-    python scripts/make_data_manifest.py /path/to/shared/data [-o tactile6d/data_manifest.json]
+    python scripts/make_data_manifest.py /path/to/shared/data [-o tactile6d/data/data_manifest.json]
 
 The manifest lists every third-party file the project reads, with its size, sha256 and the place it
 came from upstream (GitHub repository, pinned commit, path in that repository), so that
-``tactile6d.data`` can verify a local copy or download and verify the files on a fresh machine.
+``tactile6d.data.third_party`` can verify a local copy or download and verify the files on a fresh machine.
 The list of files is fixed here, from the data layout described in ``shared/data/SOURCES.md``;
 a needed file that is absent from the directory is an error, not a silent omission.
 """

@@ -83,7 +83,7 @@ def _as_str(a) -> list[str]:
 
 
 def load_ranked(artifacts: Path, method: str) -> dict:
-    from tactile6d.io import read_artifact
+    from tactile6d.data.hdf5 import read_artifact
 
     art = read_artifact(artifacts / "runs" / "caddeo2023" / method / "ranked.h5", "ranked")
     return {"names": _as_str(art["names"]), "objects": _as_str(art["objects"]),
@@ -122,7 +122,7 @@ def fake_ranked(seed: int, odd_cases: bool = True) -> dict:
 
 def standin_rotation(obj: str) -> np.ndarray:
     """A rotation whose rotation-only ADI is far above 2 cm (a missing estimate = a failure)."""
-    from tactile6d import metrics
+    from tactile6d.core import metrics
 
     pts = model_points(obj)
     best, best_d = None, -1.0
@@ -257,8 +257,9 @@ def script_figures(dict_objects, objs) -> dict:
 
 
 def project_recomputed(data: dict) -> tuple[dict, dict]:
-    """tactile6d.metrics / evaluation.summarise_by_object on points.xyz: (figures, per-scene ADI arrays)."""
-    from tactile6d import evaluation, metrics
+    """tactile6d.core.metrics / scoring.summarise_by_object on points.xyz: (figures, per-scene ADI arrays)."""
+    from tactile6d.core import metrics
+    from tactile6d.evaluation import scoring
 
     S = len(data["names"])
     errors = {k: np.full((S, TOP_K), np.nan) for k in ("position", "adi", "adi_rotation", "contact_ok")}
@@ -273,7 +274,7 @@ def project_recomputed(data: dict) -> tuple[dict, dict]:
         e = metrics.ranked_pose_errors(trees[obj][0], data["poses"][s, :n], T_GT, k=n, tree=trees[obj][1])
         for k in ("position", "adi", "adi_rotation"):
             errors[k][s, :n] = e[k]
-    figs = evaluation.summarise_by_object(errors, np.array(data["objects"]))
+    figs = scoring.summarise_by_object(errors, np.array(data["objects"]))
     return {o: {m: v[m] for m in METRICS} for o, v in figs.items()}, errors
 
 
@@ -294,7 +295,7 @@ def project_json(artifacts: Path) -> dict:
 
 
 def check_adi(calls, ranked, errors, notes) -> dict:
-    """Compare every ADI the script computed with tactile6d.metrics (same poses, same order)."""
+    """Compare every ADI the script computed with tactile6d.core.metrics (same poses, same order)."""
     # the script's call order per object: auc #1 S, B; auc #1-5 S, B; rot #1 S, B; rot #1-5 S, B
     order = [(m, "adi", 1) for m in METHODS] + [(m, "adi", 5) for m in METHODS] + \
             [(m, "adi_rotation", 1) for m in METHODS] + [(m, "adi_rotation", 5) for m in METHODS]
@@ -302,7 +303,7 @@ def check_adi(calls, ranked, errors, notes) -> dict:
     assert len(calls) == len(objs) * len(order), (len(calls), len(objs))
     diffs = {"adi": [], "adi_rotation": []}
     auc_pairs = []
-    from tactile6d import metrics
+    from tactile6d.core import metrics
 
     c = 0
     for obj in objs:
@@ -382,7 +383,7 @@ def main() -> int:
         ranked = {m: load_ranked(args.artifacts, m) for m in METHODS}
         sfile = args.artifacts / "scenes/caddeo2023.h5"
         if sfile.is_file():
-            from tactile6d.io import read_artifact
+            from tactile6d.data.hdf5 import read_artifact
 
             sc = read_artifact(sfile, "scenes")
             dev = np.abs(np.asarray(sc["T_world_object"]) - T_GT).max()

@@ -1,6 +1,6 @@
-"""Accuracy and speed of tactile6d.patch on simulated contacts: contact point, normal, mask, press depth.
+"""Accuracy and speed of tactile6d.perception.contact_patch on simulated contacts: contact point, normal, mask, press depth.
 
-Contact sets (all rendered by tactile6d.render.DigitRenderer with its default settings, noise included):
+Contact sets (all rendered by tactile6d.sim.render.DigitRenderer with its default settings, noise included):
 
 - ``ycb-standard``: YCB objects touched as the validation scenes touch them (sensor axis along the
   inward face normal, gel apex pressed 1.5-2.0 mm, random roll) over the paper's no-contact image.
@@ -13,7 +13,7 @@ Contact sets (all rendered by tactile6d.render.DigitRenderer with its default se
 - ``validation``, ``offaxis``: the pipeline's generated scene sets (``--scenes``), when present.
 
 Two ground truths: ``axis`` = the surface point the sensor axis was placed on and its face normal (the
-scene convention; only for square placements), ``deepest`` = tactile6d.patch's own definition applied to
+scene convention; only for square placements), ``deepest`` = tactile6d.perception.contact_patch's own definition applied to
 the renderer's true press depth (the band-weighted mean surface point of the deepest press) with the
 object's true normals there. ``landmark`` rows are the old assumption (contact at
 sensor.CONTACT_POINT, normal along -x) measured against the same truth.
@@ -32,11 +32,13 @@ import cv2
 import numpy as np
 import trimesh
 
-from tactile6d import meshes, patch, sensor
-from tactile6d.errors import InputError
-from tactile6d.geometry import invert_pose
-from tactile6d.render import DigitRenderer
-from tactile6d.surface import sample_surface_random
+from tactile6d.core import sensor
+from tactile6d.core.errors import InputError
+from tactile6d.core.geometry import invert_pose
+from tactile6d.perception import contact_patch
+from tactile6d.sim import meshes
+from tactile6d.sim.render import DigitRenderer
+from tactile6d.sim.surface_sampling import sample_surface_random
 
 OBJECTS = ("002_master_chef_can", "004_sugar_box", "006_mustard_bottle", "007_tuna_fish_can", "008_pudding_box",
            "011_banana", "019_pitcher_base", "021_bleach_cleanser", "036_wood_block", "040_large_marker")
@@ -66,17 +68,17 @@ def deepest_truth(depth: np.ndarray, normal_fn, top_band: float, max_pixels: int
     normal_fn: sensor-frame points (n, 3) -> true unit normals (n, 3). The band's pixels are subsampled
     evenly to at most ``max_pixels`` for the normals (the point uses them all).
     """
-    point, _ = patch.depth_to_contact(depth, None, top_band)
+    point, _ = contact_patch.depth_to_contact(depth, None, top_band)
     dmax = float(depth.max())
     w = np.clip(depth - dmax * (1.0 - top_band), 0.0, None)
     idx = np.flatnonzero(w)
     idx = idx[:: max(1, len(idx) // max_pixels)]
-    pts = patch.depth_to_points(depth).reshape(-1, 3)[idx]
+    pts = contact_patch.depth_to_points(depth).reshape(-1, 3)[idx]
     normal = w.ravel()[idx] @ normal_fn(pts)
     return point, normal / np.linalg.norm(normal)
 
 
-TOP_BAND = patch.PatchModel.__dataclass_fields__["top_band"].default
+TOP_BAND = contact_patch.PatchModel.__dataclass_fields__["top_band"].default
 
 # Design variants measured by --ablation: PatchModel settings changed from the defaults (refitted).
 VARIANTS = {
@@ -98,7 +100,7 @@ class Case:
         self.true_depth, self.to_surface = true_depth, to_surface
 
 
-def evaluate(cases: list[Case], model: patch.PatchModel) -> tuple[dict, list]:
+def evaluate(cases: list[Case], model: contact_patch.PatchModel) -> tuple[dict, list]:
     """-> {set: {metric: [values]}}, per-image times (s)."""
     rows: dict[str, dict[str, list]] = {}
     times = []
@@ -108,7 +110,7 @@ def evaluate(cases: list[Case], model: patch.PatchModel) -> tuple[dict, list]:
 
     for case in cases:
         t = time.perf_counter()
-        res = patch.image_to_patch(case.image, case.no_contact, model)
+        res = contact_patch.image_to_patch(case.image, case.no_contact, model)
         times.append(time.perf_counter() - t)
         add(case.name, "missed", float(not res.contact))
         if not res.contact:
@@ -164,9 +166,9 @@ def ycb_contacts(mesh, n, rng, renderer, offaxis: bool):
         p, nrm = p[0], mesh.face_normals[face[0]]
         depth = rng.uniform(0.0015, 0.0020)
         if offaxis:
-            T = patch.tilted_sensor_pose(p, nrm, rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi),
+            T = contact_patch.tilted_sensor_pose(p, nrm, rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi),
                                          rng.uniform(0.0, np.deg2rad(20.0)), rng.uniform(-0.004, 0.004, 2))
-            T = patch.press_to_depth(renderer, mesh, T, depth)
+            T = contact_patch.press_to_depth(renderer, mesh, T, depth)
             if T is None:
                 continue
         else:
@@ -206,22 +208,22 @@ def make_cases(args, data: Path) -> list[Case]:
                 cases.append(Case("ycb-tacto-unit", other.image, nc_tacto, truths, other.depth, to_surface))
         print(f"  {obj}: contacts rendered", flush=True)
 
-    presses = patch.sample_presses(args.superquadrics, rng, paper, max_tilt=np.deg2rad(20.0), max_offset=0.004,
+    presses = contact_patch.sample_presses(args.superquadrics, rng, paper, max_tilt=np.deg2rad(20.0), max_offset=0.004,
                                    depth_range=(0.0015, 0.0020))
-    images, depths, normals = patch.render_presses(paper, presses, seed=int(rng.integers(2**31)))
+    images, depths, normals = contact_patch.render_presses(paper, presses, seed=int(rng.integers(2**31)))
     mesh, shape = None, None
     for press, image, depth, nrm in zip(presses, images, depths, normals):
         if press.shape is not shape:
-            shape, mesh = press.shape, patch.shape_to_mesh(press.shape)
-        truths = {"deepest": patch.depth_to_contact(depth, nrm.astype(np.float64), TOP_BAND)}
+            shape, mesh = press.shape, contact_patch.shape_to_mesh(press.shape)
+        truths = {"deepest": contact_patch.depth_to_contact(depth, nrm.astype(np.float64), TOP_BAND)}
         cases.append(Case("sq-offaxis", image, nc_paper, truths, depth, surface_distance_fn(mesh, press.T_object_sensor)))
 
     for path in map(Path, args.scenes):
         if not path.is_file():
             print(f"scene set {path} not found, skipped")
             continue
-        from tactile6d.io import read_artifact
-        from tactile6d.scenes import scene_set_from_artifact
+        from tactile6d.data.hdf5 import read_artifact
+        from tactile6d.sim.scenes import scene_set_from_artifact
 
         scenes = scene_set_from_artifact(read_artifact(path, "scenes"))
         ycb = {}
@@ -244,20 +246,20 @@ def run(args):
     data = Path(os.environ.get("TACTILE6D_DATA", "../shared/data"))
     cases = make_cases(args, data)
     if args.ablation:
-        cal = patch.calibration_set(args.presses, seed=args.seed)
+        cal = contact_patch.calibration_set(args.presses, seed=args.seed)
         results = {}
         for variant, settings in VARIANTS.items():
-            model = patch.fit_model(cal[0], cal[3], cal[2], cal[1], seed=args.seed, **settings)
+            model = contact_patch.fit_model(cal[0], cal[3], cal[2], cal[1], seed=args.seed, **settings)
             results[variant] = evaluate(cases, model)[0]
             print(f"  variant {variant!r} evaluated", flush=True)
         report_ablation(results)
         return
     if args.model:
-        model = patch.load_model(args.model)
+        model = contact_patch.load_model(args.model)
         print(f"calibration: loaded {args.model}")
     else:
         t = time.perf_counter()
-        model = patch.calibrate(args.presses, seed=args.seed)
+        model = contact_patch.calibrate(args.presses, seed=args.seed)
         print(f"calibration: {args.presses} simulated presses, {time.perf_counter() - t:.1f} s")
     report(*evaluate(cases, model))
 
@@ -267,8 +269,8 @@ def main(argv=None):
     parser.add_argument("--objects", nargs="+", default=list(OBJECTS))
     parser.add_argument("--per-object", type=int, default=6, help="contacts per object and per YCB set")
     parser.add_argument("--superquadrics", type=int, default=60, help="off-centre, tilted superquadric presses")
-    parser.add_argument("--presses", type=int, default=60, help="calibration presses (patch.calibrate)")
-    parser.add_argument("--model", default=None, help="a saved calibration (patch.save_model) instead of calibrating")
+    parser.add_argument("--presses", type=int, default=60, help="calibration presses (contact_patch.calibrate)")
+    parser.add_argument("--model", default=None, help="a saved calibration (contact_patch.save_model) instead of calibrating")
     parser.add_argument("--scenes", nargs="*", default=["artifacts/scenes/validation.h5", "artifacts/scenes/offaxis.h5"],
                         help="scene sets of the pipeline to measure on (their true contact point and normal)")
     parser.add_argument("--seed", type=int, default=0)

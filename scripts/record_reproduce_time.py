@@ -4,7 +4,7 @@
 
 The Makefile takes STARTED (``date +%s``) when it reads the `reproduce` target, so before the venv install, and
 runs this after `dvc repro`; scripts/update_readme.py then writes the figure into the README. Beside the
-target's own time (a ``tactile6d.stage_clock`` record named ``make reproduce``), the file says what the run
+target's own time (a ``tactile6d.runtime.stage_clock`` record named ``make reproduce``), the file says what the run
 held: how many of the pipeline's stages DVC ran in it (their time records started after STARTED; the
 others were unchanged or restored from the run cache and keep older records) and their summed seconds,
 whether the venv was installed in it, and whether the data came from a local copy (``DATA=``).
@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tactile6d from this checkout, as the stages
 
-from tactile6d import stage_clock  # noqa: E402
+from tactile6d.runtime import stage_clock  # noqa: E402
 
 OUT = stage_clock.TIMES_DIR / "make_reproduce.json"
 INSTALLED = Path(".venv") / ".installed"  # the Makefile's install stamp

@@ -37,7 +37,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from tactile6d.instruction_sets import PINNED_VARIABLES, pinned_environment  # noqa: E402 (imports nothing heavy)
+from tactile6d.runtime.instruction_sets import (  # noqa: E402 (imports nothing heavy)
+    PINNED_VARIABLES,
+    pinned_environment,
+)
 
 # The database images: two YCB objects prepared as prepare_object does, and a superquadric like the
 # training set's. Per mesh, this many evenly spread surface points (sample_surface's sampler), each with
@@ -52,7 +55,7 @@ SEED = 20261122
 SETTINGS: dict[str, tuple[dict[str, str], dict[str, object]]] = {
     "default": ({}, {}),
     "repeat": ({}, {}),  # the default again: the run-to-run noise floor (should be none)
-    "unpinned": ({}, {"unpinned": True}),  # without tactile6d.instruction_sets: each library's own pick
+    "unpinned": ({}, {"unpinned": True}),  # without tactile6d.runtime.instruction_sets: each library's own pick
     "workers-2": ({}, {"workers": 2}),
     "embree-sse2": ({"EMBREE_CONFIG": "isa=sse2"}, {}),
     "embree-sse4.2": ({"EMBREE_CONFIG": "isa=sse4.2"}, {}),
@@ -119,8 +122,8 @@ def render_config() -> dict:
 
 def meshes(data: Path, objects=YCB_OBJECTS, superquadric=SUPERQUADRIC) -> dict:
     """name -> trimesh: the YCB objects cleaned as prepare_object cleans them, and the superquadric."""
-    from tactile6d import meshes as tm
-    from tactile6d.superquadrics import Superquadric, superquadric_mesh
+    from tactile6d.sim import meshes as tm
+    from tactile6d.sim.superquadrics import Superquadric, superquadric_mesh
 
     out = {}
     for name in objects:
@@ -133,8 +136,8 @@ def meshes(data: Path, objects=YCB_OBJECTS, superquadric=SUPERQUADRIC) -> dict:
 
 def contact_poses(mesh, n: int, rng: np.random.Generator, press_depth: float) -> np.ndarray:
     """(n, 4, 4) database-style sensor poses: evenly spread points, random rolls, the database's press."""
-    from tactile6d.sensor import sensor_poses_touching
-    from tactile6d.surface import sample_surface_even
+    from tactile6d.core.sensor import sensor_poses_touching
+    from tactile6d.sim.surface_sampling import sample_surface_even
 
     points, normals, _ = sample_surface_even(mesh, n, rng)
     rolls = rng.uniform(-np.pi, np.pi, n)
@@ -152,8 +155,8 @@ def render_set(data: Path, contacts: int = CONTACTS_PER_MESH, objects=YCB_OBJECT
     """
     import cv2
 
-    from tactile6d.geometry import invert_pose
-    from tactile6d.render import DigitRenderer, add_noise, mesh_arrays
+    from tactile6d.core.geometry import invert_pose
+    from tactile6d.sim.render import DigitRenderer, add_noise, mesh_arrays
 
     cfg = render_config()
     background = cv2.imread(str(data / cfg["background"]), cv2.IMREAD_COLOR)
@@ -228,7 +231,7 @@ def build_shim(directory: Path) -> Path | None:
 
 def setting_environment(name: str, shim: Path | None, data: Path | None = None) -> dict[str, str]:
     """The environment a setting's child runs in: this one, with the setting's variables, then capped at
-    AVX2 as the pipeline's stages are (``tactile6d.instruction_sets``; a setting's lower level stays)."""
+    AVX2 as the pipeline's stages are (``tactile6d.runtime.instruction_sets``; a setting's lower level stays)."""
     env_vars, switches = SETTINGS[name]
     env = dict(os.environ)
     env.setdefault("OPENBLAS_NUM_THREADS", "1")

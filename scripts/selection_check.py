@@ -1,7 +1,7 @@
 """Does a change to the selection keep every selection identification makes, and how long do they take?
 
     python scripts/selection_check.py dump --artifacts artifacts --scenes caddeo2023 offaxis:20 --out before.npz
-    (change tactile6d/selection.py)
+    (change tactile6d/estimation/select.py)
     python scripts/selection_check.py dump --artifacts artifacts --scenes caddeo2023 offaxis:20 --out after.npz
     python scripts/selection_check.py compare before.npz after.npz
 
@@ -27,12 +27,12 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
-from tactile6d import layout
-from tactile6d.config import compose_config
-from tactile6d.errors import NoMatch
-from tactile6d.identifier import Identifier
-from tactile6d.io import read_artifact
-from tactile6d.optimize import use_cpu_devices_for
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import NoMatch
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.estimation.identifier import Identifier
+from tactile6d.estimation.optimize import use_cpu_devices_for
 
 FIELDS = ("tuples", "errors", "delta_d", "capped")
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # this checkout's tactile6d
 
-from tactile6d.stage_clock import duration  # noqa: E402
+from tactile6d.runtime.stage_clock import duration  # noqa: E402
 
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 TIME_START, TIME_END = "<!-- reproduce-time:start -->", "<!-- reproduce-time:end -->"

@@ -545,7 +545,7 @@ def compare_out(root: Path, cache: Path, shadow: Path, out: dict, ignore_timings
     if made == recorded:
         return OutResult(rel, True, "identical")
     if ignore_timings and under(rel, (TIMES_DIR,)):
-        return OutResult(rel, True, "identical except timings", ["a stage-time record (tactile6d.stage_clock)"], {rel})
+        return OutResult(rel, True, "identical except timings", ["a stage-time record (tactile6d.runtime.stage_clock)"], {rel})
     if not recorded.endswith(".dir"):
         return judge_file(recorded_file(root, cache, rel, recorded), new_path, rel, ignore_timings)
     return compare_dir(root, cache, rel, recorded, new_path, ignore_timings)

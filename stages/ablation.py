@@ -1,17 +1,17 @@
 """Stage ablation: the effect of each accuracy switch (normals, best_n, refinement, patches) at L = 3 sensors.
 
 Every variant of config section ``ablation.variants`` is applied to the ``select``, ``optimize`` and
-``rank`` sections (``tactile6d.variants``: method ``ours``; solver ``ablation.solver`` unless the variant
+``rank`` sections (``tactile6d.evaluation.ablation_variants``: method ``ours``; solver ``ablation.solver`` unless the variant
 sets its own; a variant may start from a preset's sections), and each scene of the set is estimated from
 all its sensors; on the scene sets of ``ablation.curves_on``, a variant of ``ablation.curves`` also from
-every subset of 1, ..., L of them (``tactile6d.sensor_subsets``, as in sensor_study). A variant of
+every subset of 1, ..., L of them (``tactile6d.evaluation.sensor_subsets``, as in sensor_study). A variant of
 ``ablation.only_on`` runs on the scene sets it lists only; a scene set of ``ablation.variants_on`` runs
 the variants it lists only. Two variants that come out as the same settings (e.g. the last step of the
 chain and ``default``) are estimated once. Reads the scenes and each object's artifacts; writes
 ``artifacts/metrics/ablation_<set>.json``: variant -> ``L<count>`` -> the evaluation's metric names, plus
 ``time_s_median`` (per estimate).
 
-One executor task per variant and scene (``tactile6d.executor``, config section ``executor``):
+One executor task per variant and scene (``tactile6d.runtime.executor``, config section ``executor``):
 ``ablation.workers`` local processes by default, a Dask cluster's workers when ``executor.address``
 names one. A task gets its scene's arrays and reads the objects' artifacts by path (on a cluster, the
 artifacts directory must be at the same absolute path on every worker); each worker process loads a
@@ -28,21 +28,18 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
-from tactile6d import evaluation, layout
-from tactile6d.config import parse_stage_args
-from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.estimator import Estimator
-from tactile6d.executor import executor_from_config, process_cache
-from tactile6d.io import read_artifact, write_json
-from tactile6d.optimize import use_cpu_devices
-from tactile6d.sensor_subsets import (
-    SubsetRows,
-    scene_backgrounds,
-    score_scene_subsets,
-    summarise_subset_rows,
-)
-from tactile6d.stage_clock import timed
-from tactile6d.variants import estimator_settings_key, variant_config
+from tactile6d.core.errors import ConfigError, exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_json
+from tactile6d.estimation.estimator import Estimator
+from tactile6d.estimation.optimize import use_cpu_devices
+from tactile6d.evaluation import scoring
+from tactile6d.evaluation.ablation_variants import estimator_settings_key, variant_config
+from tactile6d.evaluation.sensor_subsets import SubsetRows, score_scene_subsets, summarise_subset_rows
+from tactile6d.runtime.executor import executor_from_config, process_cache
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim.scenes import scene_backgrounds
 
 
 def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.ndarray],
@@ -67,7 +64,7 @@ def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.nd
     if obj not in estimators:
         estimators[obj] = Estimator.from_artifacts(obj, artifacts, cfg)
     if obj not in references:
-        references[obj] = evaluation.load_object_reference(artifacts, obj)
+        references[obj] = scoring.load_object_reference(artifacts, obj)
     return {L: score_scene_subsets(estimators[obj], scene["T_world_sensors"], scene["images"], scene["T_world_object"],
                                    references[obj], L, scene["backgrounds"])
             for L in counts}

@@ -5,7 +5,7 @@ checkpoint and ``artifacts/ae/train.json``. Writes ``artifacts/metrics/ae.json``
 ``artifacts/ae/angles_by_type.png``:
 - ``train_seconds`` and the held-out reconstruction loss on superquadric images;
 - the latent angle of the database points per contact type (the contact classifier of
-  tactile6d.contact), and ``auroc_flat_edge`` / ``auroc_edge_corner``: the AUROC of the angle as a score
+  tactile6d.sim.contact_types), and ``auroc_flat_edge`` / ``auroc_edge_corner``: the AUROC of the angle as a score
   separating flat from edge and edge from corner contacts (larger for the flatter kind: a flat press
   changes more of the image), over all objects pooled and (``..._within_object``) over pairs of
   database points of the same object only, which is how selection uses the angle;
@@ -28,23 +28,26 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
-from tactile6d import autoencoder, contact, layout, metrics  # noqa: E402
-from tactile6d.config import parse_stage_args  # noqa: E402
-from tactile6d.errors import exit_on_error  # noqa: E402
-from tactile6d.io import read_artifact, write_json  # noqa: E402
-from tactile6d.latent_gaps import triplet_gaps  # noqa: E402
-from tactile6d.stage_clock import timed
+from tactile6d.core import metrics  # noqa: E402
+from tactile6d.core.errors import exit_on_error  # noqa: E402
+from tactile6d.data import layout  # noqa: E402
+from tactile6d.data.hdf5 import read_artifact, write_json  # noqa: E402
+from tactile6d.evaluation.latent_gaps import triplet_gaps  # noqa: E402
+from tactile6d.perception import autoencoder  # noqa: E402
+from tactile6d.runtime.stage_args import parse_stage_args  # noqa: E402
+from tactile6d.runtime.stage_clock import timed  # noqa: E402
+from tactile6d.sim import contact_types, surface_sampling  # noqa: E402
 
 
 def database_types(artifacts: str, name: str, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     obj = read_artifact(layout.object_file(artifacts, name), "object")
     mesh = trimesh.Trimesh(obj["vertices"], obj["faces"], process=False)
-    return contact.classify_contacts(contact.sample_surface(mesh), points, normals)
+    return contact_types.classify_contacts(surface_sampling.sample_surface(mesh), points, normals)
 
 
 def plot_angles(by_type: dict[str, np.ndarray], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    kinds = [k for k in contact.CONTACT_TYPES if len(by_type[k])]
+    kinds = [k for k in contact_types.CONTACT_TYPES if len(by_type[k])]
     ax.boxplot([by_type[k] for k in kinds], showfliers=False)
     ax.set_xticks(range(1, len(kinds) + 1), [f"{k}\n(n={len(by_type[k])})" for k in kinds])
     ax.set_ylabel("latent angle to no contact (rad)")
@@ -67,8 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         types[name] = database_types(artifacts, name, surface["points"], surface["normals"])
     all_angles, all_types = np.concatenate(list(angles.values())), np.concatenate(list(types.values()))
     all_objects = np.concatenate([np.full(len(types[name]), name) for name in names])
-    by_type = {kind: all_angles[all_types == code] for code, kind in enumerate(contact.CONTACT_TYPES)}
-    objects_by_type = {kind: all_objects[all_types == code] for code, kind in enumerate(contact.CONTACT_TYPES)}
+    by_type = {kind: all_angles[all_types == code] for code, kind in enumerate(contact_types.CONTACT_TYPES)}
+    objects_by_type = {kind: all_objects[all_types == code] for code, kind in enumerate(contact_types.CONTACT_TYPES)}
 
     def auroc_within_objects(positive: str, negative: str) -> float:
         return metrics.auroc_within_groups(by_type[positive], by_type[negative],

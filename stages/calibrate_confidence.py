@@ -4,7 +4,7 @@ Reads ``artifacts/scenes/confidence.h5`` (stage make_confidence_scenes, drawn fr
 every object's artifacts that the online estimator loads (``Estimator.from_artifacts``), and config
 sections ``confidence``, ``select``, ``optimize``, ``rank``, ``render.background``. Estimates every scene
 as a user does (the estimator, its default method, each scene's own no-contact images when the set has
-them), measures the best pose's ADI against the truth, and fits ``tactile6d.confidence``'s logistic model
+them), measures the best pose's ADI against the truth, and fits ``tactile6d.estimation.confidence``'s logistic model
 on the ranked poses' features. Writes ``artifacts/confidence/model.json`` (what the estimator loads),
 ``artifacts/confidence/fit.json`` (per scene: features, outcome, probability, the ranked poses' scores and
 distances from the best) and
@@ -19,14 +19,18 @@ import warnings
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import confidence, evaluation, layout, metrics, photometric
-from tactile6d.config import parse_stage_args
-from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.estimator import Estimator
-from tactile6d.io import read_artifact, write_json, write_text
-from tactile6d.optimize import use_cpu_devices_for
-from tactile6d.scenes import scene_set_from_artifact
-from tactile6d.stage_clock import timed
+from tactile6d.core import metrics
+from tactile6d.core.errors import ConfigError, exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_json, write_text
+from tactile6d.estimation import confidence
+from tactile6d.estimation.estimator import Estimator
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.evaluation import scoring
+from tactile6d.perception import photometric
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim.scenes import scene_set_from_artifact
 
 SCENE_SET = "confidence"
 
@@ -37,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, SCENE_SET), "scenes"))
     objects = [str(o) for o in dict.fromkeys(scenes.objects.tolist())]
-    references = {o: evaluation.load_object_reference(artifacts, o) for o in objects}
+    references = {o: scoring.load_object_reference(artifacts, o) for o in objects}
 
     rows, light_warnings = [], 0
     for obj in objects:

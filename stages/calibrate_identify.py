@@ -5,7 +5,7 @@ seed; no other stage reads it) is screened against every object of the library, 
 ``identify.distractors`` (``Identifier.candidates``:
 the images read once, each object estimated with ``identify.screen``), and the weights of the
 conditional logit over the best poses' features are fitted by maximum likelihood
-(``identification.fit_weights``). The test set never enters the calibration, and the validation and
+(``identity_model.fit_weights``). The test set never enters the calibration, and the validation and
 offaxis figures of stage identify are on scenes the weights never saw. Writes
 ``artifacts/identify/calibration.json``: the feature names, the weights, the objects and scene set
 used, and the fitted score's top-1 / top-3 accuracy on those same scenes (an optimistic figure; the
@@ -20,13 +20,14 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import identification, layout
-from tactile6d.config import parse_stage_args
-from tactile6d.errors import exit_on_error
-from tactile6d.identifier import Identifier
-from tactile6d.io import read_artifact, write_json
-from tactile6d.optimize import use_cpu_devices_for
-from tactile6d.stage_clock import timed
+from tactile6d.core.errors import exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_json
+from tactile6d.estimation import identity_model
+from tactile6d.estimation.identifier import Identifier
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
 
 SCENE_SET = "calibration"
 L2 = 1e-3  # ridge on the weights: keeps them finite when every true object already scores best
@@ -48,18 +49,18 @@ def main(argv: list[str] | None = None) -> int:
             found, _ = identifier.candidates(scenes["T_world_sensors"][s], scenes["images"][s])
             features.append(np.stack([c.features for c in found]))
     features = np.stack(features)
-    weights = identification.fit_weights(features, truth, L2)
-    probabilities = identification.scores_to_probabilities(identification.features_to_scores(features, weights))
+    weights = identity_model.fit_weights(features, truth, L2)
+    probabilities = identity_model.scores_to_probabilities(identity_model.features_to_scores(features, weights))
     rank_of_truth = (probabilities > probabilities[np.arange(len(truth)), truth][:, None]).sum(axis=1)
     out = {
-        "features": list(identification.FEATURES),
+        "features": list(identity_model.FEATURES),
         "weights": weights.tolist(),
         "objects": identifier.names,
         "scene_set": SCENE_SET,
         "n_scenes": int(len(truth)),
         "top1_on_calibration_scenes": float(np.mean(rank_of_truth == 0)),
         "top3_on_calibration_scenes": float(np.mean(rank_of_truth < 3)),
-        "mean_log_likelihood": -identification.negative_log_likelihood(weights, features, truth),
+        "mean_log_likelihood": -identity_model.negative_log_likelihood(weights, features, truth),
         "seconds": round(time.perf_counter() - t0, 1),
     }
     path = layout.identify_calibration_file(artifacts)

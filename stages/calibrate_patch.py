@@ -1,8 +1,8 @@
 """Stage calibrate_patch: the contact-patch calibration that reads contact points and normals from images.
 
-Renders ``patch.n_presses`` simulated presses of random superquadrics with the DIGIT model of config
+Renders ``contact_patch.n_presses`` simulated presses of random superquadrics with the DIGIT model of config
 section ``render`` over a flat grey background and fits the colour-to-normal regression
-(``tactile6d.patch.calibrate``). Writes ``artifacts/patch/model.npz`` (``patch.save_model``), which the
+(``tactile6d.patch.calibrate``). Writes ``artifacts/patch/model.npz`` (``contact_patch.save_model``), which the
 estimator loads for ``select.contacts=patch``.
 """
 
@@ -11,20 +11,21 @@ from __future__ import annotations
 import sys
 import time
 
-from tactile6d import layout, patch
-from tactile6d.config import parse_stage_args
-from tactile6d.errors import exit_on_error
-from tactile6d.stage_clock import timed
+from tactile6d.core.errors import exit_on_error
+from tactile6d.data import layout
+from tactile6d.perception import contact_patch
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
 
 
 def main(argv: list[str] | None = None) -> int:
     _, cfg = parse_stage_args(argv, __doc__.splitlines()[0])
     t0 = time.perf_counter()
-    renderer = patch.calibration_renderer(cfg.render)
-    model = patch.calibrate(int(cfg.patch.n_presses), int(cfg.patch.seed), renderer)
+    renderer = contact_patch.calibration_renderer(cfg.render)
+    model = contact_patch.calibrate(int(cfg.patch.n_presses), int(cfg.patch.seed), renderer)
     path = layout.patch_model_file(cfg.paths.artifacts_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
-    patch.save_model(model, path)
+    contact_patch.save_model(model, path)
     print(f"calibrated on {cfg.patch.n_presses} presses in {time.perf_counter() - t0:.1f} s -> {path}")
     return 0
 

@@ -12,12 +12,13 @@ from __future__ import annotations
 import sys
 import time
 
-from tactile6d import autoencoder, layout
-from tactile6d.config import parse_stage_args
-from tactile6d.database import StoredImages
-from tactile6d.errors import exit_on_error
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.stage_clock import timed
+from tactile6d.core.errors import exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.perception import autoencoder
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim.database import StoredImages
 
 
 def encode_object(name: str, artifacts, model, norm, ae_cfg: dict) -> None:

@@ -18,13 +18,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import confidence, evaluation, gel_contact, layout
-from tactile6d.config import parse_stage_args
-from tactile6d.errors import exit_on_error
-from tactile6d.io import read_artifact, write_json, write_text
-from tactile6d.object_artifacts import load_surface_points
-from tactile6d.render import mesh_arrays
-from tactile6d.stage_clock import timed
+from tactile6d.core.errors import exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_json, write_text
+from tactile6d.data.object_artifacts import load_surface_points
+from tactile6d.estimation import confidence
+from tactile6d.evaluation import scoring
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim import gel_press
+from tactile6d.sim.render import mesh_arrays
 
 METHODS = ("ours", "baseline")
 STEPS = ("encode", "select", "optimize", "rank")
@@ -32,8 +35,8 @@ STEPS = ("encode", "select", "optimize", "rank")
 
 def method_errors(ranked, scenes, objects_data, meshes, k: int, image_step: int,
                   image_iou_min: float) -> dict[str, np.ndarray]:
-    """Per-scene (S, k) error arrays of one method's ranked poses: ``evaluation.scene_errors`` and
-    ``contact_image_ok`` (1.0 / 0.0, NaN where there is no estimate): ``gel_contact.image_consistency`` on
+    """Per-scene (S, k) error arrays of one method's ranked poses: ``scoring.scene_errors`` and
+    ``contact_image_ok`` (1.0 / 0.0, NaN where there is no estimate): ``gel_press.image_consistency`` on
     a ray grid of ``image_step`` pixels with the IoU threshold ``image_iou_min``. meshes: object name ->
     ``render.MeshArrays``."""
     names = scenes["names"].tolist()
@@ -44,11 +47,11 @@ def method_errors(ranked, scenes, objects_data, meshes, k: int, image_step: int,
         obj = str(scenes["objects"][s])
         ref = objects_data[obj]
         n = min(int(ranked["n_poses"][s]), k)
-        e = evaluation.scene_errors(ranked["poses"][s], n, scenes["T_world_object"][s],
+        e = scoring.scene_errors(ranked["poses"][s], n, scenes["T_world_object"][s],
                                     scenes["T_world_sensors"][s], ref.points, ref.surface, tree=ref.tree, k=k)
-        image = gel_contact.image_consistency(meshes[obj], ranked["poses"][s][:n], scenes["T_world_object"][s],
+        image = gel_press.image_consistency(meshes[obj], ranked["poses"][s][:n], scenes["T_world_object"][s],
                                               scenes["T_world_sensors"][s], step=image_step, iou_min=image_iou_min)
-        e["contact_image_ok"] = evaluation.pad_to_k(image["consistent"], k)
+        e["contact_image_ok"] = scoring.pad_to_k(image["consistent"], k)
         for key, values in rows.items():
             values.append(e[key])
     return {key: np.array(value).reshape(len(names), k) for key, value in rows.items()}
@@ -58,9 +61,9 @@ def scenes_with_untouched_sensors(scenes, meshes, image_step: int) -> list[str]:
     """Names of the scenes in which the true pose leaves some sensor's gel unpressed on the ray grid."""
     out = []
     for s, name in enumerate(scenes["names"].tolist()):
-        depth = gel_contact.poses_to_gel_depths(meshes[str(scenes["objects"][s])], scenes["T_world_object"][s],
+        depth = gel_press.poses_to_gel_depths(meshes[str(scenes["objects"][s])], scenes["T_world_object"][s],
                                                 scenes["T_world_sensors"][s], image_step)
-        if np.any(gel_contact.empty_true_masks(depth[0] > 0)):
+        if np.any(gel_press.empty_true_masks(depth[0] > 0)):
             out.append(name)
     return out
 
@@ -103,9 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     artifacts = cfg.paths.artifacts_dir
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]
-    objects_data = {obj: evaluation.load_object_reference(artifacts, obj) for obj in objects}
+    objects_data = {obj: scoring.load_object_reference(artifacts, obj) for obj in objects}
     meshes = {obj: mesh_arrays(ref.surface.mesh) for obj, ref in objects_data.items()}
-    k = evaluation.TOP_K
+    k = scoring.TOP_K
     image_step, image_iou_min = int(cfg.evaluate.contact_image_step), float(cfg.evaluate.contact_image_iou_min)
     untouched = scenes_with_untouched_sensors(scenes, meshes, image_step)
     if untouched:
@@ -119,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     for method in METHODS:
         ranked = read_artifact(layout.run_dir(artifacts, args.scene_set, method) / "ranked.h5", "ranked")
         errors = method_errors(ranked, scenes, objects_data, meshes, k, image_step, image_iou_min)
-        by_object = evaluation.summarise_by_object(errors, scenes["objects"])
+        by_object = scoring.summarise_by_object(errors, scenes["objects"])
         summary[method] = by_object
         headline[method] = {**by_object.get("average", {}), **timing_summary(ranked), "n_scenes": len(scenes["names"]),
                             "n_failed": int((np.asarray(ranked["n_poses"]) == 0).sum())}
@@ -142,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     write_json(layout.metrics_file(artifacts, args.scene_set), headline)
     eval_dir = Path(artifacts) / "eval"
     write_json(eval_dir / f"{args.scene_set}.json", details)
-    table = evaluation.table_markdown(summary, METHODS) if objects else "(no scenes)"
+    table = scoring.table_markdown(summary, METHODS) if objects else "(no scenes)"
     write_text(eval_dir / f"{args.scene_set}_table.md", table + "\n")
     return 0
 

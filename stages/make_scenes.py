@@ -2,7 +2,7 @@
 ``variation``, ``kinematic``, ``calibration`` and ``confidence`` generated: the last two from
 ``identify.calibration_scenes`` and ``confidence.scenes``, the scenes the stages calibrate_identify and
 calibrate_confidence fit on). A generated set's section may add what a real set-up does
-to its images or sensor poses (``light``, ``kinematics``: ``tactile6d.perturb``), drawn after the clean
+to its images or sensor poses (``light``, ``kinematics``: ``tactile6d.sim.perturb``), drawn after the clean
 set from a generator of its own, so the set's objects, poses and contacts are those of its clean draw.
 
 Reads the objects' artifacts (meshes for contact types; surface points so validation contacts avoid
@@ -19,13 +19,15 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from tactile6d import contact, layout, perturb, scenes
-from tactile6d.config import parse_stage_args, require, section_to_dict
-from tactile6d.data import DataStore, group_files, group_names
-from tactile6d.errors import exit_on_error
-from tactile6d.io import read_artifact, read_scene_dir, write_artifact
-from tactile6d.render import DigitRenderer, load_background_bgr
-from tactile6d.stage_clock import timed
+from tactile6d.core.config import require, section_to_dict
+from tactile6d.core.errors import exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, read_scene_dir, write_artifact
+from tactile6d.data.third_party import DataStore, group_files, group_names
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim import contact_types, perturb, scenes, surface_sampling
+from tactile6d.sim.render import DigitRenderer, load_background_bgr
 
 SCENE_SETS = ("caddeo2023", "validation", "offaxis", "variation", "kinematic", "calibration", "confidence")
 # The generated sets that fit something rather than measure it, with the config section each is drawn
@@ -53,7 +55,7 @@ def import_caddeo2023(object_names: list[str], store: DataStore, artifacts_dir: 
             objects.append(obj)
             poses.append(T)
             images.append(imgs)
-    surfaces = {obj: contact.sample_surface(load_mesh(artifacts_dir, obj)) for obj in chosen}
+    surfaces = {obj: surface_sampling.sample_surface(load_mesh(artifacts_dir, obj)) for obj in chosen}
     n = len(names)
     T_world_object = np.broadcast_to(scenes.CADDEO2023_T_WORLD_OBJECT, (n, 4, 4)).copy()
     if n == 0:
@@ -86,7 +88,7 @@ def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, art
         gel_offset_max=float(v.gel_offset_max),
     )
     meshes = {o: load_mesh(artifacts_dir, o) for o in object_names}
-    surfaces = {o: contact.sample_surface(m) for o, m in meshes.items()}
+    surfaces = {o: surface_sampling.sample_surface(m) for o, m in meshes.items()}
     database = {o: read_artifact(layout.surface_file(artifacts_dir, o), "surface")["points"] for o in object_names}
     renderer = DigitRenderer.from_config(cfg.render, load_background_bgr(cfg, store), workers=1)
 
@@ -102,7 +104,7 @@ def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, art
 
 def real_set_up(out: scenes.SceneSet, v, background_rgb: np.ndarray) -> scenes.SceneSet:
     """A generated set as a real set-up gives it: its section's ``light`` and ``kinematics``, when it has
-    them (``tactile6d.perturb``), each from its own generator seeded by the set's seed."""
+    them (``tactile6d.sim.perturb``), each from its own generator seeded by the set's seed."""
     if v.get("light") is not None:
         light = v.light
         out = perturb.drift_light(out, background_rgb, float(light.gain_max),
@@ -128,9 +130,9 @@ def main(argv: list[str] | None = None) -> int:
         out = import_caddeo2023(object_names, store, artifacts_dir)
     else:
         out = generate(scene_set, object_names, cfg, store, artifacts_dir)
-    counts = np.bincount(out.contact_types.ravel(), minlength=len(contact.CONTACT_TYPES))
+    counts = np.bincount(out.contact_types.ravel(), minlength=len(contact_types.CONTACT_TYPES))
     print(f"{scene_set}: {len(out)} scenes; contact types "
-          + ", ".join(f"{t} {c}" for t, c in zip(contact.CONTACT_TYPES, counts)))
+          + ", ".join(f"{t} {c}" for t, c in zip(contact_types.CONTACT_TYPES, counts)))
     write_artifact(
         layout.scenes_file(artifacts_dir, scene_set),
         "scenes",

@@ -3,10 +3,10 @@
 Reads config sections ``training_set`` (how many images, shapes, sizes, exponents, press depths;
 tactile6d.superquadrics.sample_training_contacts) and ``render`` (the simulator and its background, read
 from the data directory). Writes ``artifacts/training_set.h5`` (schema ``training_set``,
-tactile6d.database): the images and contact masks stored compactly, and per image its sensor pose in
+tactile6d.sim.database): the images and contact masks stored compactly, and per image its sensor pose in
 the shape's frame, the shape (``shape_index``, semi-axes, exponents e1 and e2), press depth, roll, contact
 kind (``superquadrics.KIND_NAMES``: the kind of the mesh vertex nearest to the contact point), contact type
-(``contact_types``: tactile6d.contact's classifier, the one that labels the YCB database points, applied
+(``contact_types``: tactile6d.sim.contact_types' classifier, the one that labels the YCB database points, applied
 to the shape's mesh; train_ae ranks latent angles by it) and whether the shape enters the sensor body
 (``body_contact``, rendered anyway, as TACTO would).
 """
@@ -19,15 +19,18 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import contact, database, layout
-from tactile6d import superquadrics as sq
-from tactile6d.config import parse_stage_args, section_to_dict
-from tactile6d.data import DataStore
-from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.io import write_artifact
-from tactile6d.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
-from tactile6d.sensor import contact_normals, sensor_poses_to_surface_points
-from tactile6d.stage_clock import timed
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import ConfigError, exit_on_error
+from tactile6d.core.sensor import contact_normals, sensor_poses_to_surface_points
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import write_artifact
+from tactile6d.data.third_party import DataStore
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim import contact_types, database
+from tactile6d.sim import superquadrics as sq
+from tactile6d.sim import surface_sampling
+from tactile6d.sim.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
 
     groups = sq.training_contact_groups(contacts)
     kinds = np.empty(n, dtype=np.uint8)
-    contact_types = np.empty(n, dtype=np.int8)
+    type_codes = np.empty(n, dtype=np.int8)
     body = np.empty(n, dtype=bool)
     background = load_background_bgr(cfg, DataStore(cfg.paths))
     with DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False) as renderer:
@@ -57,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
                 database.render_compact(renderer, mesh_arrays(mesh), poses[a:b], images, progress=bar.update)
                 touched = sensor_poses_to_surface_points(poses[a:b], depths[a:b])
                 kinds[a:b] = sq.nearest_vertex_kinds(mesh, touched, float(ts.sharp_radius))
-                contact_types[a:b] = contact.classify_contacts(contact.sample_surface(mesh), touched,
+                type_codes[a:b] = contact_types.classify_contacts(surface_sampling.sample_surface(mesh), touched,
                                                                contact_normals(poses[a:b]))
                 body[a:b] = database.body_contacts(mesh.vertices, poses[a:b])
     shape_index = np.concatenate([np.full(b - a, k) for k, (a, b) in enumerate(groups)])
@@ -74,12 +77,12 @@ def main(argv: list[str] | None = None) -> int:
             "depths": depths,
             "rolls": np.array([c.roll for c in contacts]),
             "kinds": kinds,
-            "contact_types": contact_types,
+            "contact_types": type_codes,
             "no_contact": no_contact,
             "body_contact": body,
             **images.datasets(float(cfg.render.noise_std), noise_seeds[:-1]),
         },
-        attrs={"kind_names": list(sq.KIND_NAMES), "contact_type_names": list(contact.CONTACT_TYPES),
+        attrs={"kind_names": list(sq.KIND_NAMES), "contact_type_names": list(contact_types.CONTACT_TYPES),
                "n_shapes": len(groups)},
         config={"training_set": section_to_dict(cfg, "training_set"), "render": section_to_dict(cfg, "render")},
     )
@@ -91,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{np.count_nonzero(images.mask_pixels)}; kinds "
         + ", ".join(f"{name} {c}" for name, c in zip(sq.KIND_NAMES, counts))
         + "; contact types "
-        + ", ".join(f"{name} {int(np.sum(contact_types == code))}" for code, name in enumerate(contact.CONTACT_TYPES))
+        + ", ".join(f"{name} {int(np.sum(type_codes == code))}" for code, name in enumerate(contact_types.CONTACT_TYPES))
         + f"; shape inside the sensor body in {int(body.sum())}"
     )
     return 0

@@ -14,29 +14,21 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import layout
-from tactile6d.config import section_to_dict
-from tactile6d.errors import exit_on_error
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.object_artifacts import load_surface_normals, load_surface_points
-from tactile6d.optimize import use_cpu_devices
-from tactile6d.run_artifacts import (
-    carried,
-    compact_hypotheses,
-    median_or_nan,
-    parse_run_stage_args,
-    scene_contacts,
-    scene_rows,
-    stack_ragged,
-)
-from tactile6d.schemas import CONTACT_FIELDS, PATCH_FIELDS
-from tactile6d.settings import OptimizeSettings, SensorSettings
-from tactile6d.stage_clock import timed
-from tactile6d.steps.optimize import optimize
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import exit_on_error
+from tactile6d.core.settings import METHODS, OptimizeSettings, SensorSettings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.data.object_artifacts import load_surface_normals, load_surface_points
+from tactile6d.data.schemas import CONTACT_FIELDS, PATCH_FIELDS
+from tactile6d.estimation.optimize import optimize, use_cpu_devices
+from tactile6d.estimation.run_storage import carried, compact_hypotheses, scene_contacts, scene_rows, stack_ragged
+from tactile6d.runtime.stage_args import median_or_nan, parse_run_stage_args
+from tactile6d.runtime.stage_clock import timed
 
 
 def main(argv: list[str] | None = None) -> int:
-    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
+    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0], METHODS)
     settings = OptimizeSettings.from_cfg(cfg.optimize)
     sensors = SensorSettings.from_cfg(cfg.sensors)
     if settings.solver == "gd":

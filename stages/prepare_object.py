@@ -13,14 +13,16 @@ import sys
 
 import numpy as np
 
-from tactile6d import layout, meshes
-from tactile6d.config import parse_stage_args, section_to_dict
-from tactile6d.data import DataStore, group_files, group_names
-from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.executor import map_objects
-from tactile6d.io import write_artifact, write_json
-from tactile6d.stage_clock import timed
-from tactile6d.surface import sample_surface_even
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import ConfigError, exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import write_artifact, write_json
+from tactile6d.data.third_party import DataStore, group_files, group_names
+from tactile6d.runtime.executor import map_objects
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim import meshes
+from tactile6d.sim.surface_sampling import sample_surface_even
 
 
 def ycb_object_names() -> list[str]:

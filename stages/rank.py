@@ -14,27 +14,22 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import layout
-from tactile6d.collision import PenetrationModel
-from tactile6d.config import section_to_dict
-from tactile6d.contact import sample_surface
-from tactile6d.errors import exit_on_error
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.run_artifacts import (
-    carried,
-    expand_hypotheses,
-    median_or_nan,
-    parse_run_stage_args,
-    scene_contacts,
-)
-from tactile6d.schemas import CONTACT_FIELDS
-from tactile6d.settings import RankSettings, SensorSettings
-from tactile6d.stage_clock import timed
-from tactile6d.steps.rank import load_mesh, load_pieces, rank
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import exit_on_error
+from tactile6d.core.settings import METHODS, RankSettings, SensorSettings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.data.schemas import CONTACT_FIELDS
+from tactile6d.estimation.collision import PenetrationModel
+from tactile6d.estimation.rank import load_mesh, load_pieces, rank
+from tactile6d.estimation.run_storage import carried, expand_hypotheses, scene_contacts
+from tactile6d.runtime.stage_args import median_or_nan, parse_run_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim.surface_sampling import sample_surface
 
 
 def main(argv: list[str] | None = None) -> int:
-    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
+    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0], METHODS)
     settings = RankSettings.from_cfg(cfg.rank)
     sensors = SensorSettings.from_cfg(cfg.sensors)
     artifacts = cfg.paths.artifacts_dir

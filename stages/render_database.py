@@ -2,7 +2,7 @@
 
 Reads ``artifacts/surfaces/<name>.h5`` (M points, outward normals), ``artifacts/objects/<name>.h5`` (the
 cleaned mesh), the no-contact background named by ``render.background`` (data directory) and config
-section ``render``. Writes ``artifacts/databases/<name>.h5`` (schema ``database``, tactile6d.database):
+section ``render``. Writes ``artifacts/databases/<name>.h5`` (schema ``database``, tactile6d.sim.database):
 per point the sensor pose ``T_object_sensor`` (``sensor_poses_touching`` with ``render.press_depth`` and
 the roll rule ``render.roll``), its image and contact mask stored compactly, and whether the object
 enters the sensor body there (``body_contact``; rendered anyway, as TACTO would: ``render.strict`` is
@@ -10,7 +10,7 @@ not applied here); also the no-contact image. Randomness (rolls, noise) comes fr
 (``database.object_rng``). With ``--distractors`` it renders every distractor of the identification
 library (under ``artifacts/distractors/``), one object after the other through one executor.
 
-The poses are rendered in chunks of ``CHUNK``, one executor task each (``tactile6d.executor``, config
+The poses are rendered in chunks of ``CHUNK``, one executor task each (``tactile6d.runtime.executor``, config
 section ``executor``): ``render.workers`` local processes by default, a Dask cluster's workers when
 ``executor.address`` names one. A task gets everything it renders from (mesh arrays, poses, renderer
 settings, background) and sends back the encoded images, so workers need no shared filesystem; the
@@ -27,21 +27,17 @@ import time
 import numpy as np
 import trimesh
 
-from tactile6d import database, layout
-from tactile6d.config import parse_stage_args, section_to_dict
-from tactile6d.data import DataStore
-from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.executor import executor_from_config, process_cache
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.render import (
-    DigitRenderer,
-    MeshArrays,
-    add_noise,
-    load_background_bgr,
-    mesh_arrays,
-)
-from tactile6d.sensor import sensor_poses_touching
-from tactile6d.stage_clock import timed
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import ConfigError, exit_on_error
+from tactile6d.core.sensor import sensor_poses_touching
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.data.third_party import DataStore
+from tactile6d.runtime.executor import executor_from_config, process_cache
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim import database
+from tactile6d.sim.render import DigitRenderer, MeshArrays, add_noise, load_background_bgr, mesh_arrays
 
 # Poses per task: ~0.5 s of rendering and encoding each, so 2000 points make 63 tasks, enough to keep
 # a few dozen workers busy and to even out the load; the per-task cost (shipping the mesh and the

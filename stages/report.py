@@ -3,7 +3,7 @@
 Reads the metrics and tables of evaluate, sensor_study, ae_quality and calibrate_confidence (with the
 reliability bins in evaluate's per-set details), and, for the figures, the
 caddeo2023 scenes, our ranked poses and tuples, and the objects' surfaces and latents; for the
-stage-time table, every other stage's time record (``artifacts/times/stages/``, ``tactile6d.stage_clock``). Writes
+stage-time table, every other stage's time record (``artifacts/times/stages/``, ``tactile6d.runtime.stage_clock``). Writes
 ``reports/results.md`` and ``reports/figures/*.png`` (tracked by git, so the README can show them;
 ``make reproduce`` copies results.md into the README).
 """
@@ -19,12 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d import confidence, layout, stage_clock, viz
-from tactile6d.config import parse_stage_args
-from tactile6d.errors import exit_on_error
-from tactile6d.evaluation import PAPER_TABLE_I, ablation_markdown
-from tactile6d.geometry import invert_pose, transform_points
-from tactile6d.io import read_artifact, write_text
+from tactile6d.core.errors import exit_on_error
+from tactile6d.core.geometry import invert_pose, transform_points
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_text
+from tactile6d.estimation import confidence
+from tactile6d.evaluation import plots
+from tactile6d.evaluation.scoring import PAPER_TABLE_I, ablation_markdown
+from tactile6d.runtime import stage_clock
+from tactile6d.runtime.stage_args import parse_stage_args
 
 REPORT_DIR = Path("reports")
 FIGURE_SCENES = 4  # pose and Omega figures for this many scenes (one per object, in order)
@@ -144,7 +147,7 @@ def confidence_section(artifacts: str, figures: Path) -> list[str]:
         if probabilities:
             name = "generated sets pooled" if label == "generated" else label
             bins[f"{name} ({len(probabilities)})"] = confidence.reliability(np.array(probabilities), np.array(right))
-    viz.reliability_figure(bins, "Confidence: predicted against observed").savefig(figures / "reliability.png",
+    plots.reliability_figure(bins, "Confidence: predicted against observed").savefig(figures / "reliability.png",
                                                                                     dpi=100)
     return ["\n".join(lines), "", "![reliability diagram](figures/reliability.png)", ""]
 
@@ -163,7 +166,7 @@ def figure_scenes(artifacts: str, out: Path) -> list[str]:
         seen.append(obj)
         points = read_artifact(layout.object_file(artifacts, obj), "object")["metric_points"]
         scene = scenes["names"][s].replace("/", "_")
-        fig = viz.poses_figure(points, scenes["T_world_object"][s], ranked["poses"][s, 0], scenes["T_world_sensors"][s],
+        fig = plots.poses_figure(points, scenes["T_world_object"][s], ranked["poses"][s, 0], scenes["T_world_sensors"][s],
                                f"{scenes['names'][s]}: true pose (grey), our estimate #1 (orange)")
         fig.savefig(out / f"pose_{scene}.png", dpi=100)
         names.append(f"pose_{scene}.png")
@@ -171,7 +174,7 @@ def figure_scenes(artifacts: str, out: Path) -> list[str]:
         db_angles = read_artifact(layout.latents_file(artifacts, obj), "latents")["angles"]
         omegas = [np.flatnonzero(np.abs(db_angles - a) < d) for a, d in zip(tuples["angles"][s], tuples["delta_h"][s])]
         true_local = transform_points(invert_pose(scenes["T_world_object"][s]), scenes["contact_points"][s])
-        fig = viz.omegas_figure(db_points, omegas, true_local, f"{scenes['names'][s]}: tactile selection per sensor")
+        fig = plots.omegas_figure(db_points, omegas, true_local, f"{scenes['names'][s]}: tactile selection per sensor")
         fig.savefig(out / f"omegas_{scene}.png", dpi=100)
         names.append(f"omegas_{scene}.png")
     return names
@@ -195,7 +198,7 @@ def ablation_sections(artifacts: str, order: list[str], figures: Path, count: st
         if not ordered:
             parts += [f"{title}: (not run)", ""]
             continue
-        viz.ablation_figure({v: r[count] for v, r in ordered.items()}, f"Ablation, {title.lower()}, {count[1:]} sensors").savefig(
+        plots.ablation_figure({v: r[count] for v, r in ordered.items()}, f"Ablation, {title.lower()}, {count[1:]} sensors").savefig(
             figures / f"ablation_{scene_set}.png", dpi=100)
         parts += [f"{title}:", "", f"![ablation {scene_set}](figures/ablation_{scene_set}.png)", "",
                   ablation_markdown(ordered), ""]
@@ -228,7 +231,7 @@ def identification_section(artifacts: str, figures: Path, workers: int) -> list[
         rows.append(f"| {title} | {m['n_scenes']} | {100 * m['top1']:.1f} | {100 * m['top3']:.1f} | "
                     f"{_cell(pose.get('pos_err_cm_top1'))} | {_cell(pose.get('adi_auc_paper_top1'))} | "
                     f"{m['time_s_median']:.2f} |")
-        viz.confusion_figure(np.array(m["confusion"]), m["objects"], f"Identification, {title}").savefig(
+        plots.confusion_figure(np.array(m["confusion"]), m["objects"], f"Identification, {title}").savefig(
             figures / f"identify_{scene_set}.png", dpi=90)
         images.append(f"![identification, {title}](figures/identify_{scene_set}.png)")
     if not rows:
@@ -238,7 +241,7 @@ def identification_section(artifacts: str, figures: Path, workers: int) -> list[
                "built-in primitives and procedural shapes; the confusion figures show those something was taken for)")
     return [
         ("Each scene identified against the whole library without being told its object "
-         "(`tactile6d.identifier`; weights fitted by stage `calibrate_identify` on scenes of their own, "
+         "(`tactile6d.estimation.identifier`; weights fitted by stage `calibrate_identify` on scenes of their own, "
          f"`identify.calibration_scenes`, which none of these sets shares). The library: {library}. Pose figures: the best pose of the scenes identified correctly. Seconds: median "
          f"per identification, {workers} worker process{'es' if workers > 1 else ''} (`identify.workers`), in the "
          "pipeline; `tactile6d bench identify` measures it alone (docs/identification.md)."),
@@ -276,7 +279,7 @@ def times_section(records: list[dict]) -> list[str]:
     machines = sorted({f"{r['cpu']}, {r['cores']} cores" for r in records})
     first, last = records[0]["started"], max((r["finished"] for r in records), key=datetime.datetime.fromisoformat)
     return [
-        ("Each stage's wall time as it recorded it (`tactile6d/stage_clock.py`, `artifacts/times/stages/`): "
+        ("Each stage's wall time as it recorded it (`tactile6d/runtime/stage_clock.py`, `artifacts/times/stages/`): "
          "from the start of its process to its end. DVC runs the stages one after another, so their sum is "
          "the pipeline's wall time, less DVC's own work between stages and this report stage (README: the whole "
          "`make reproduce`). A stage DVC skipped or restored from its run cache keeps the time of the run that "
@@ -299,10 +302,10 @@ def main(argv: list[str] | None = None) -> int:
 
     maps = {o: (read_artifact(layout.surface_file(artifacts, o), "surface")["points"],
                 read_artifact(layout.latents_file(artifacts, o), "latents")["angles"]) for o in objects}
-    viz.angle_maps_figure(maps).savefig(figures / "latent_angles.png", dpi=90)
+    plots.angle_maps_figure(maps).savefig(figures / "latent_angles.png", dpi=90)
     sensor_count = sensor_count_curves(artifacts, "caddeo2023", list(cfg.ablation.curves or []))
     if sensor_count:
-        viz.sensor_count_figure(sensor_count, "The paper's 40 triplets, sensor subsets").savefig(
+        plots.sensor_count_figure(sensor_count, "The paper's 40 triplets, sensor subsets").savefig(
             figures / "sensor_count.png", dpi=100)
     scene_figures = figure_scenes(artifacts, figures)
 
@@ -350,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
         "### Real set-ups: light that drifted, sensor poses off (generated)",
         "",
         ("Validation's kind of scenes (sensors normal and centred), each with a seed of its own, then given what a "
-         "real set-up does (`tactile6d/perturb.py`, conf/scenes): **variation**, each sensor's light drifted since "
+         "real set-up does (`tactile6d/sim/perturb.py`, conf/scenes): **variation**, each sensor's light drifted since "
          f"its no-contact image was recorded (gain per channel 1 +- {float(cfg.scenes.variation.light.gain_max):g}, "
          f"gamma {float(cfg.scenes.variation.light.gamma_min):g}-{float(cfg.scenes.variation.light.gamma_max):g}, "
          f"camera noise {float(cfg.scenes.variation.light.noise_std):g} grey levels; in "
@@ -365,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
         "### Confidence: can an estimate be trusted?",
         "",
         ("Each estimate's confidence is the probability that its best pose is within 1 cm ADI of the truth "
-         "(`tactile6d/confidence.py`): a logistic regression on how much worse the best rival pose scores and "
+         "(`tactile6d/estimation/confidence.py`): a logistic regression on how much worse the best rival pose scores and "
          "how far the top poses spread, fitted by stage `calibrate_confidence` on "
          f"{int(cfg.confidence.scenes.scenes_per_object) * len(objects)} scenes of its own (conf/confidence: "
          "tilted, off-centre, drifted light, sensor poses off by "

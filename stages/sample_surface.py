@@ -13,13 +13,14 @@ import sys
 import numpy as np
 import trimesh
 
-from tactile6d import layout
-from tactile6d.config import parse_stage_args, section_to_dict
-from tactile6d.errors import ConfigError, exit_on_error
-from tactile6d.executor import map_objects
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.stage_clock import timed
-from tactile6d.surface import nearest_neighbour_distances, sample_surface_even
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import ConfigError, exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.runtime.executor import map_objects
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim.surface_sampling import nearest_neighbour_distances, sample_surface_even
 
 
 def sample_object(name: str, cfg, artifacts) -> str:

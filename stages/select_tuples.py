@@ -17,23 +17,16 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from tactile6d import layout
-from tactile6d.autoencoder import load_checkpoint
-from tactile6d.config import section_to_dict
-from tactile6d.errors import NoMatch, exit_on_error
-from tactile6d.inputs import check_images, check_sensor_poses
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.object_artifacts import load_surface_normals, load_surface_points
-from tactile6d.run_artifacts import (
-    median_or_nan,
-    parse_run_stage_args,
-    stack_contacts,
-    stack_ragged,
-)
-from tactile6d.scenes import scene_set_from_artifact
-from tactile6d.settings import SelectSettings, SensorSettings
-from tactile6d.stage_clock import timed
-from tactile6d.steps.encode import (
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import NoMatch, exit_on_error
+from tactile6d.core.settings import METHODS, SelectSettings, SensorSettings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.data.object_artifacts import load_surface_normals, load_surface_points
+from tactile6d.estimation.run_storage import stack_contacts, stack_ragged
+from tactile6d.estimation.select import select
+from tactile6d.perception.autoencoder import load_checkpoint
+from tactile6d.perception.encode import (
     LatentAngleEncoder,
     align_light,
     load_background,
@@ -42,7 +35,10 @@ from tactile6d.steps.encode import (
     read_angles,
     read_contacts,
 )
-from tactile6d.steps.select import select
+from tactile6d.perception.inputs import check_images, check_sensor_poses
+from tactile6d.runtime.stage_args import median_or_nan, parse_run_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim.scenes import scene_set_from_artifact
 
 
 class Database:
@@ -72,7 +68,7 @@ class Database:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0])
+    args, cfg = parse_run_stage_args(argv, __doc__.splitlines()[0], METHODS)
     settings = SelectSettings.from_cfg(cfg.select)
     sensors = SensorSettings.from_cfg(cfg.sensors)
     artifacts = cfg.paths.artifacts_dir

@@ -14,14 +14,15 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from tactile6d import evaluation, layout
-from tactile6d.config import parse_stage_args
-from tactile6d.errors import exit_on_error
-from tactile6d.estimator import Estimator
-from tactile6d.optimize import use_cpu_devices_for
-from tactile6d.io import read_artifact, write_json, write_text
-from tactile6d.sensor_subsets import evaluate_sensor_count
-from tactile6d.stage_clock import timed
+from tactile6d.core.errors import exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_json, write_text
+from tactile6d.estimation.estimator import Estimator
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.evaluation import scoring
+from tactile6d.evaluation.sensor_subsets import evaluate_sensor_count
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
 
 METHODS = ("ours", "baseline")
 
@@ -48,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]
     n_sensors = scenes["T_world_sensors"].shape[1] if len(scenes["names"]) else 0
 
-    references = {obj: evaluation.load_object_reference(artifacts, obj) for obj in objects}
+    references = {obj: scoring.load_object_reference(artifacts, obj) for obj in objects}
 
     results = {}
     for method in METHODS:

@@ -1,7 +1,7 @@
 """Stage train_ae: train the object-agnostic autoencoder on the superquadric training set only.
 
 Reads ``artifacts/training_set.h5`` and config section ``ae``. With ``ae.rank_weight`` > 0 the loss also
-orders the latent angles by the training images' contact types (tactile6d.autoencoder). Writes
+orders the latent angles by the training images' contact types (tactile6d.perception.autoencoder). Writes
 ``artifacts/ae/model.pt`` (weights, normalisation, config, history), ``artifacts/ae/training_curve.csv``
 (DVC plot: losses per epoch) and ``artifacts/ae/train.json`` (training time and final losses).
 """
@@ -11,12 +11,15 @@ from __future__ import annotations
 import sys
 import time
 
-from tactile6d import autoencoder, contact, layout
-from tactile6d.config import parse_stage_args, section_to_dict
-from tactile6d.database import StoredImages
-from tactile6d.errors import exit_on_error
-from tactile6d.io import read_artifact, write_json, write_text
-from tactile6d.stage_clock import timed
+from tactile6d.core.config import section_to_dict
+from tactile6d.core.errors import exit_on_error
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_json, write_text
+from tactile6d.perception import autoencoder
+from tactile6d.runtime.stage_args import parse_stage_args
+from tactile6d.runtime.stage_clock import timed
+from tactile6d.sim import contact_types
+from tactile6d.sim.database import StoredImages
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -26,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     images = StoredImages(training_set)
     sharpness = None
     if autoencoder.AEConfig.from_cfg(section_to_dict(cfg, "ae")).rank_weight > 0.0:
-        sharpness = contact.sharpness_ranks(training_set["contact_types"])
+        sharpness = contact_types.sharpness_ranks(training_set["contact_types"])
     start = time.perf_counter()
     model, norm, history = autoencoder.train(images, training_set["background"], section_to_dict(cfg, "ae"),
                                              seed=int(cfg.ae.seed), sharpness=sharpness,

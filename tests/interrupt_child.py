@@ -26,9 +26,9 @@ sys.path[:0] = [str(HERE.parent)]
 
 import numpy as np  # noqa: E402 (after the path)
 
-from tactile6d.errors import exit_on_error  # noqa: E402
-from tactile6d.executor import LocalExecutor  # noqa: E402
-from tactile6d.io import write_artifact, write_json  # noqa: E402
+from tactile6d.core.errors import exit_on_error  # noqa: E402
+from tactile6d.data.hdf5 import write_artifact, write_json  # noqa: E402
+from tactile6d.runtime.executor import LocalExecutor  # noqa: E402
 
 TASK_S = 30.0
 
@@ -72,8 +72,8 @@ def write_slowly(directory: str) -> int:
 def render_many(directory: str) -> int:
     import trimesh
 
-    from tactile6d import sensor
-    from tactile6d.render import DigitRenderer
+    from tactile6d.core import sensor
+    from tactile6d.sim.render import DigitRenderer
 
     background = np.full((sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH, 3), 100, np.uint8)
     n = 4000

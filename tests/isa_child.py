@@ -18,10 +18,11 @@ sys.path[:0] = [str(HERE), str(HERE.parent)]
 
 import numpy as np  # noqa: E402 (after the path; the environment is set by the parent)
 import torch  # noqa: E402
-
-from tactile6d import autoencoder as ae  # noqa: E402
-from tactile6d import geometry, optimize  # noqa: E402
 from test_autoencoder import background, blob_images, small_cfg  # noqa: E402
+
+from tactile6d.core import geometry  # noqa: E402
+from tactile6d.estimation import optimize
+from tactile6d.perception import autoencoder as ae  # noqa: E402
 
 
 def digest(*arrays) -> str:

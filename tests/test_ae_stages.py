@@ -14,9 +14,10 @@ from stages import (
     sample_surface,
     train_ae,
 )
-from tactile6d import autoencoder, layout
-from tactile6d.errors import ArtifactError
-from tactile6d.io import read_artifact
+from tactile6d.core.errors import ArtifactError
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.perception import autoencoder
 
 pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
 
@@ -58,7 +59,7 @@ def test_ranking_on_a_training_set_without_contact_types_names_make_training_set
 
 
 def test_latents_match_a_direct_encoding(artifacts):
-    from tactile6d.database import StoredImages
+    from tactile6d.sim.database import StoredImages
 
     lat = read_artifact(layout.latents_file(artifacts, "prim_box"), "latents")
     db = read_artifact(layout.database_file(artifacts, "prim_box"), "database")

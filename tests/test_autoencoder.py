@@ -5,8 +5,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from tactile6d import autoencoder as ae
-from tactile6d.errors import ArtifactError, ConfigError, InputError
+from tactile6d.core.errors import ArtifactError, ConfigError, InputError
+from tactile6d.perception import autoencoder as ae
 
 CONF = Path(__file__).resolve().parent.parent / "conf" / "ae"
 

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import collision as col
-from tactile6d import geometry as g
-from tactile6d import ranking as rk
-from tactile6d import sensor as sn
-from tactile6d.errors import InputError, MeshError
+from tactile6d.core import geometry as g
+from tactile6d.core import sensor as sn
+from tactile6d.core.errors import InputError, MeshError
+from tactile6d.estimation import collision as col
+from tactile6d.estimation import rank as rk
 
 CUBE = trimesh.creation.box(extents=[0.05, 0.05, 0.05])
 
@@ -154,9 +154,9 @@ def test_penetrating_pose_ranks_below_a_touching_one():
 
 
 def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
-    from tactile6d.config import compose_config
-    from tactile6d.sensor import GEL_CENTER
-    from tactile6d.settings import SensorSettings
+    from tactile6d.core.config import compose_config
+    from tactile6d.core.sensor import GEL_CENTER
+    from tactile6d.core.settings import SensorSettings
 
     def allowance(mm, deg):
         return SensorSettings.from_cfg(compose_config([f"sensors.pose_sigma_mm={mm}",
@@ -169,8 +169,8 @@ def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
 
 
 def test_the_sensor_pose_sigmas_switch_the_sensor_corrections():
-    from tactile6d.config import compose_config
-    from tactile6d.settings import Settings
+    from tactile6d.core.config import compose_config
+    from tactile6d.core.settings import Settings
 
     def settings(*overrides):
         return Settings.from_cfg(compose_config(list(overrides)))

@@ -1,16 +1,17 @@
-"""tactile6d.confidence against naive references, and the stage calibrate_confidence end to end."""
+"""tactile6d.estimation.confidence against naive references, and the stage calibrate_confidence end to end."""
 
 import json
 
 import numpy as np
 import pytest
 from scipy.optimize import minimize
-
-from tactile6d import confidence, layout
-from tactile6d.geometry import make_pose
-from tactile6d.io import write_artifact
-from tactile6d.scenes import SceneSet
 from test_identify import BOX_TOUCHES, T_TRUE, prim_artifacts, touching_sensors  # noqa: F401 (a fixture)
+
+from tactile6d.core.geometry import make_pose
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import write_artifact
+from tactile6d.estimation import confidence
+from tactile6d.sim.scenes import SceneSet
 
 
 def test_sigmoid_is_the_logistic_function_without_overflow():
@@ -108,8 +109,8 @@ def test_the_stage_fits_on_its_scenes_and_the_estimator_then_reports_the_confide
     import shutil
 
     from stages import calibrate_confidence
-    from tactile6d.config import compose_config
-    from tactile6d.estimator import Estimator
+    from tactile6d.core.config import compose_config
+    from tactile6d.estimation.estimator import Estimator
 
     artifacts = tmp_path / "artifacts"
     shutil.copytree(prim_artifacts, artifacts)
@@ -140,7 +141,7 @@ def test_the_stage_refuses_scenes_that_are_all_right_or_all_wrong(prim_artifacts
     import shutil
 
     from stages import calibrate_confidence
-    from tactile6d.errors import ConfigError
+    from tactile6d.core.errors import ConfigError
 
     artifacts = tmp_path / "artifacts"
     shutil.copytree(prim_artifacts, artifacts)

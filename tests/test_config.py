@@ -2,8 +2,8 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from tactile6d.config import REPO_ROOT, compose_config, load_params, require
-from tactile6d.errors import ConfigError
+from tactile6d.core.config import REPO_ROOT, compose_config, load_params, require
+from tactile6d.core.errors import ConfigError
 
 
 def test_committed_params_yaml_is_the_composed_config():

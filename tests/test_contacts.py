@@ -1,13 +1,14 @@
-"""Contacts read from the images (tactile6d.contacts) and what the estimator does with them: patch contact
+"""Contacts read from the images (tactile6d.perception.contacts) and what the estimator does with them: patch contact
 points and normals for off-centre, tilted sensors, render-and-compare re-ranking, and their storage in
 the run artifacts."""
 
 import numpy as np
 import pytest
 import trimesh
+from test_contact_patch import smooth_background
 from test_estimator import (
-    EXACT_POSES,
     CUTS,
+    EXACT_POSES,
     HALF,
     T_TRUE,
     cut_box,
@@ -15,25 +16,27 @@ from test_estimator import (
     settings,
     small_patch_model,
 )
-from test_patch import smooth_background
 
-from tactile6d import collision, contacts, patch, photometric, sensor
-from tactile6d import estimator as est
-from tactile6d.errors import ConfigError, InputError
-from tactile6d.geometry import invert_pose, make_pose, rotvec_to_rotmat
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.render import DigitRenderer
-from tactile6d.run_artifacts import scene_contacts, stack_contacts
-from tactile6d.steps import rank as rank_step
-from tactile6d.surface import sample_surface_even
+from tactile6d.core import sensor
+from tactile6d.core.errors import ConfigError, InputError
+from tactile6d.core.geometry import invert_pose, make_pose, rotvec_to_rotmat
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.estimation import collision
+from tactile6d.estimation import estimator as est
+from tactile6d.estimation import rank as rank_step
+from tactile6d.estimation.run_storage import scene_contacts, stack_contacts
+from tactile6d.perception import contact_patch, contacts, photometric
+from tactile6d.sim import perturb
+from tactile6d.sim.render import DigitRenderer
+from tactile6d.sim.surface_sampling import sample_surface_even
 
 H, W = sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH
 
 
-def fake_patch(point, normal) -> patch.ContactPatch:
+def fake_patch(point, normal) -> contact_patch.ContactPatch:
     mask = np.zeros((H, W), dtype=bool)
     mask[100:120, 50:70] = True
-    return patch.ContactPatch(True, mask, np.where(mask, 1e-3, 0.0).astype(np.float32), np.asarray(point),
+    return contact_patch.ContactPatch(True, mask, np.where(mask, 1e-3, 0.0).astype(np.float32), np.asarray(point),
                               np.asarray(normal), 1.0)
 
 
@@ -49,7 +52,7 @@ def test_landmark_contacts_are_the_papers():
 def test_patch_contacts_are_moved_to_the_world_and_a_sensor_without_contact_keeps_its_landmark():
     T = T_TRUE @ sensor.sensor_poses_touching(np.eye(3) * 0.05, np.eye(3), [0.1, 0.2, 0.3])
     p, n = np.array([0.019, 0.003, 0.011]), np.array([-0.96, 0.28, 0.0])
-    none = patch.ContactPatch(False, np.zeros((H, W), bool), np.zeros((H, W), np.float32), None, None, 1.0)
+    none = contact_patch.ContactPatch(False, np.zeros((H, W), bool), np.zeros((H, W), np.float32), None, None, 1.0)
     c = contacts.patches_to_contacts([fake_patch(p, n), none, fake_patch(p, -n)], T)
     np.testing.assert_allclose(c.points[0], T[0, :3, :3] @ p + T[0, :3, 3])
     np.testing.assert_allclose(c.normals[2], -(T[2, :3, :3] @ n))
@@ -81,12 +84,12 @@ def test_contacts_round_trip_through_a_run_artifact(tmp_path):
 
 def test_patch_points_are_the_pressed_gel_of_each_observed_mask_in_the_world_frame():
     T = T_TRUE @ sensor.sensor_poses_touching(np.eye(3) * 0.05, np.eye(3), [0.1, 0.2, 0.3])
-    none = patch.ContactPatch(False, np.zeros((H, W), bool), np.zeros((H, W), np.float32), None, None, 1.0)
+    none = contact_patch.ContactPatch(False, np.zeros((H, W), bool), np.zeros((H, W), np.float32), None, None, 1.0)
     read = fake_patch([0.02, 0.0, 0.01], [-1.0, 0, 0])
     c = contacts.patches_to_contacts([read, none, read], T)
     points, owners = c.patch_points(T, 50)
     assert np.bincount(owners, minlength=3).tolist() == [50, 0, 50]
-    on_gel = patch.depth_to_points(read.depth)[read.mask]  # every candidate, sensor frame
+    on_gel = contact_patch.depth_to_points(read.depth)[read.mask]  # every candidate, sensor frame
     for i in (0, 2):
         local = (points[owners == i] - T[i, :3, 3]) @ T[i, :3, :3]
         assert np.min(np.linalg.norm(local[:, None] - on_gel[None], axis=-1), axis=1).max() < 1e-9
@@ -123,8 +126,8 @@ def rendered():
     normals = np.array([[-1.0, 0, 0], [0, -1.0, 0], cut_normal])
     T_object_sensors = []
     for i, (p, n) in enumerate(zip(targets, normals)):
-        T = patch.tilted_sensor_pose(p, n, 0.5 * i, 1.0 + i, np.deg2rad(12.0 + 3 * i), [0.004 - 0.003 * i, -0.003])
-        T_object_sensors.append(patch.press_to_depth(renderer, mesh, T, 0.0015))
+        T = contact_patch.tilted_sensor_pose(p, n, 0.5 * i, 1.0 + i, np.deg2rad(12.0 + 3 * i), [0.004 - 0.003 * i, -0.003])
+        T_object_sensors.append(contact_patch.press_to_depth(renderer, mesh, T, 0.0015))
     T_world_sensors = T_TRUE @ np.stack(T_object_sensors)
     images = np.stack([renderer.render(mesh, T_TRUE, T, seed=i).image for i, T in enumerate(T_world_sensors)])
     return {"mesh": mesh, "T_world_sensors": T_world_sensors, "images": images,
@@ -202,7 +205,7 @@ def test_drifted_light_is_aligned_before_the_images_are_read(rendered):
     patches move. Light far beyond a unit's drift is a warning."""
     T, images = rendered["T_world_sensors"], rendered["images"]
     gains, gammas = [[1.1, 0.92, 1.05], [0.9, 1.08, 0.95], [1.05, 1.1, 0.9]], [[0.85, 1.15, 1.0], [1.2, 0.9, 1.1], [1.0, 0.83, 1.18]]
-    drifted = np.stack([photometric.drift_light(im, g, e) for im, g, e in zip(images, gains, gammas)])
+    drifted = np.stack([perturb.drift_image_light(im, g, e) for im, g, e in zip(images, gains, gammas)])
     patch_contacts = {"select.contacts": "patch"}
     clean = make_estimator(rendered, **patch_contacts).estimate(T, images)
     aligned = make_estimator(rendered, **patch_contacts).estimate(T, drifted)
@@ -214,7 +217,7 @@ def test_drifted_light_is_aligned_before_the_images_are_read(rendered):
     moved_as_given = np.linalg.norm(as_given.contacts.points - clean.contacts.points, axis=1)
     assert moved.max() < 0.001 < moved_as_given.max()
     with pytest.warns(photometric.LightWarning, match="image 0: its light would differ by a gain"):
-        make_estimator(rendered, **patch_contacts).estimate(T, np.stack([photometric.drift_light(images[0], 0.4, 1.0),
+        make_estimator(rendered, **patch_contacts).estimate(T, np.stack([perturb.drift_image_light(images[0], 0.4, 1.0),
                                                                         *images[1:]]))
 
 

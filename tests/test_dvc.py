@@ -20,8 +20,11 @@ def tactile6d_imports(path: Path, seen: set[Path] | None = None) -> set[Path]:
         elif isinstance(node, ast.Import):
             names = [a.name for a in node.names if a.name.startswith("tactile6d")]
         for name in names:
-            rel = Path(*name.split("."))
-            for candidate in (REPO / rel.with_suffix(".py"), REPO / rel / "__init__.py"):
+            parts = name.split(".")
+            # Importing tactile6d.a.b runs tactile6d/a/__init__.py first.
+            packages = [REPO / Path(*parts[:i]) / "__init__.py" for i in range(2, len(parts))]
+            rel = Path(*parts)
+            for candidate in (*packages, REPO / rel.with_suffix(".py"), REPO / rel / "__init__.py"):
                 if candidate.is_file() and candidate not in seen:
                     seen.add(candidate)
                     tactile6d_imports(candidate, seen)

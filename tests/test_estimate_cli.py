@@ -10,20 +10,16 @@ import numpy as np
 import pytest
 
 from stages import optimize, prepare_object, rank, sample_surface, select_tuples
-from tactile6d import cli, layout
-from tactile6d import estimator as est
-from tactile6d import geometry as g
-from tactile6d.config import compose_config
-from tactile6d.errors import exit_on_error
-from tactile6d.io import (
-    read_artifact,
-    read_scene_dir,
-    write_artifact,
-    write_tactile_image,
-)
-from tactile6d.run_artifacts import scene_rows
-from tactile6d.scenes import SceneSet
-from tactile6d.sensor import sensor_poses_touching
+from tactile6d import cli
+from tactile6d.core import geometry as g
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import exit_on_error
+from tactile6d.core.sensor import sensor_poses_touching
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, read_scene_dir, write_artifact, write_tactile_image
+from tactile6d.estimation import estimator as est
+from tactile6d.estimation.run_storage import scene_rows
+from tactile6d.sim.scenes import SceneSet
 
 T_TRUE = g.make_pose(g.rotvec_to_rotmat(np.array([0.2, 0.5, -0.4])), [0.1, 0.0, 0.2])
 
@@ -244,7 +240,7 @@ def zero_axis_scene(scene, folder):
 
 
 def test_several_scenes_in_one_call_load_the_artifacts_once(capsys, artifacts, scene, tmp_path, monkeypatch):
-    from tactile6d.commands import estimate as command
+    from tactile6d.cli import estimate as command
 
     loads = []
     original = command.Estimator.from_artifacts
@@ -346,14 +342,14 @@ def test_a_known_object_without_artifacts_stops_a_batch(capsys, artifacts, scene
                                            ("~rank.x", True),
                                            ("data/triplet=1", False), ("triplet_1", False)])
 def test_overrides_are_told_apart_from_scene_folders(word, override):
-    from tactile6d.commands.estimate import is_override
+    from tactile6d.cli.estimate import is_override
 
     assert is_override(word) == override
 
 
 def test_bench_batch_figures_from_arrival_times():
     """The start-up excludes the first scene's own estimate; the per-scene time is the mean gap after it."""
-    from tactile6d.commands.bench_batch import timings
+    from tactile6d.cli.bench_batch import timings
 
     results = [{"seconds": {"total": 1.0}, "load_seconds": 0.5}, {"seconds": {"total": 0.2}, "load_seconds": 0.0},
                {"seconds": {"total": 0.4}, "load_seconds": 0.3}]
@@ -489,7 +485,7 @@ def test_no_contact_images_estimated_from_the_scenes(capsys, artifacts, scene, t
     scenes (each pressed somewhere else), said in a note; fewer than five scenes are an error line."""
     from test_estimator import write_tiny_autoencoder
 
-    from tactile6d.commands.estimate import backgrounds_from_scenes
+    from tactile6d.cli.estimate import backgrounds_from_scenes
 
     write_tiny_autoencoder(artifacts, 500, "prim_box")
     folders = []

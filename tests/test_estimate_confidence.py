@@ -11,11 +11,13 @@ import pytest
 from test_estimate_cli import artifacts, run, scene  # noqa: F401  (fixtures: prim_box artifacts, a triplet folder)
 from test_estimator import make_estimator, world, write_object_artifacts  # noqa: F401  (world: a fixture)
 
-from tactile6d import confidence, layout, metrics
-from tactile6d import estimator as est
-from tactile6d.config import compose_config
-from tactile6d.errors import ArtifactError
-from tactile6d.inputs import UnderdeterminedPoseWarning
+from tactile6d.core import metrics
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ArtifactError
+from tactile6d.data import layout
+from tactile6d.estimation import confidence
+from tactile6d.estimation import estimator as est
+from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 
 
 def hand_model(ambiguity_ratio: float = 0.5) -> confidence.ConfidenceModel:

@@ -10,18 +10,19 @@ import pytest
 import trimesh
 from omegaconf import OmegaConf
 
-from tactile6d import estimator as est
-from tactile6d import geometry as g
-from tactile6d import layout, patch
-from tactile6d.config import compose_config
-from tactile6d.errors import ArtifactError, ConfigError, InputError
-from tactile6d.inputs import UnderdeterminedPoseWarning
-from tactile6d.io import read_scene_dir, write_artifact
-from tactile6d.meshes import pack_pieces
-from tactile6d.sensor import bodies_overlap, sensor_poses_touching
-from tactile6d.settings import Settings
-from tactile6d.steps.encode import load_background
-from tactile6d.surface import sample_surface_even
+from tactile6d.core import geometry as g
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ArtifactError, ConfigError, InputError
+from tactile6d.core.sensor import bodies_overlap, sensor_poses_touching
+from tactile6d.core.settings import Settings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_scene_dir, write_artifact
+from tactile6d.estimation import estimator as est
+from tactile6d.perception import contact_patch
+from tactile6d.perception.encode import load_background
+from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+from tactile6d.sim.meshes import pack_pieces
+from tactile6d.sim.surface_sampling import sample_surface_even
 
 HALF = np.array([0.05, 0.03, 0.08])  # a 10 x 6 x 16 cm box ...
 CUTS = np.array([0.03, 0.015, 0.05])  # ... with its (+, +, +) corner cut off unevenly: no symmetry left
@@ -72,9 +73,9 @@ def settings(**overrides):
 
 
 @functools.cache
-def small_patch_model() -> patch.PatchModel:
+def small_patch_model() -> contact_patch.PatchModel:
     """A small contact-patch calibration (20 presses; the pipeline's has 60), made once per test process."""
-    return patch.calibrate(20, seed=0)
+    return contact_patch.calibrate(20, seed=0)
 
 
 def make_estimator(world, angles=None, **overrides):
@@ -253,7 +254,7 @@ def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
     end to end."""
     import torch
 
-    from tactile6d import autoencoder as ae
+    from tactile6d.perception import autoencoder as ae
 
     cfg = dict(OmegaConf.to_container(OmegaConf.load(Path(__file__).parent.parent / "conf" / "ae" / "cpu.yaml")))
     cfg.update(input_height=32, input_width=24, channels=[4, 8, 8, 16])
@@ -265,7 +266,7 @@ def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
                    {"latents": latents, "latent_nc": np.ones(128, np.float32),
                     "angles": np.linspace(0.0, np.pi, n_points)})
     layout.patch_model_file(artifacts).parent.mkdir(parents=True, exist_ok=True)
-    patch.save_model(small_patch_model(), layout.patch_model_file(artifacts))
+    contact_patch.save_model(small_patch_model(), layout.patch_model_file(artifacts))
 
 
 def test_missing_artifacts_name_the_dvc_command(tmp_path, world):
@@ -311,7 +312,7 @@ def test_missing_checkpoint_names_train_ae(tmp_path, world, data_dir):
 def off_grid(world):
     """Three sensors touching the cut box at surface points that are not database points (as in
     reality, 1-3 mm from the nearest), contact points on the surface."""
-    from tactile6d.surface import sample_surface_even
+    from tactile6d.sim.surface_sampling import sample_surface_even
 
     points, normals, _ = sample_surface_even(world["mesh"], 800, np.random.default_rng(0))
     # The -x face, the -y face and the cut face (whose normal no symmetry of the uncut box maps
@@ -435,7 +436,7 @@ def three_units(world, data_dir, tmp_path_factory):
     """The world's three sensors pressing the cut box, rendered twice: over the common simulated
     background, and each over its own unit's (``unit_background``), with the same noise; the cut box's
     artifacts with the tiny autoencoder."""
-    from tactile6d.render import DigitRenderer
+    from tactile6d.sim.render import DigitRenderer
 
     common = load_background(compose_config(), data_dir)
     units = np.stack([unit_background(common, i) for i in range(3)])

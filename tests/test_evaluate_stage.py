@@ -8,13 +8,14 @@ import pytest
 import trimesh
 
 from stages import evaluate
-from tactile6d import confidence, layout
-from tactile6d.contacts import sensors_to_landmark_contacts
-from tactile6d.geometry import make_pose
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.meshes import pack_pieces
-from tactile6d.run_artifacts import stack_contacts
-from tactile6d.sensor import sensor_poses_touching
+from tactile6d.core.geometry import make_pose
+from tactile6d.core.sensor import sensor_poses_touching
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.estimation import confidence
+from tactile6d.estimation.run_storage import stack_contacts
+from tactile6d.perception.contacts import sensors_to_landmark_contacts
+from tactile6d.sim.meshes import pack_pieces
 
 
 @pytest.fixture()

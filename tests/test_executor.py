@@ -1,4 +1,4 @@
-"""tactile6d.executor: local processes and a real Dask cluster on localhost give the same results, in
+"""tactile6d.runtime.executor: local processes and a real Dask cluster on localhost give the same results, in
 order; the initializer and the per-process memo run once per process; render_database and ablation
 write the same artifacts through either."""
 
@@ -11,13 +11,13 @@ import pytest
 from omegaconf import OmegaConf
 
 from stages import ablation, prepare_object, render_database, sample_surface
-from tactile6d import executor as ex
-from tactile6d import layout
-from tactile6d.config import compose_config
-from tactile6d.errors import ConfigError, InputError
-from tactile6d.geometry import make_pose, rotvec_to_rotmat
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.sensor import contact_normals, contact_points
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ConfigError, InputError
+from tactile6d.core.geometry import make_pose, rotvec_to_rotmat
+from tactile6d.core.sensor import contact_normals, contact_points
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.runtime import executor as ex
 
 # --- tasks (module level: the workers import this module to run them) ----------------------------------
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile6d import fidelity
+from tactile6d.evaluation import fidelity
 
 
 def test_iou_hand_computed():
@@ -69,12 +69,12 @@ def _data_dir() -> Path:
     reason="the paper's triplets are not in the data directory ($TACTILE6D_DATA or ../shared/data)",
 )
 def test_three_paper_images_are_reproduced():
-    from tactile6d.commands import fidelity as command
-    from tactile6d.config import compose_config
-    from tactile6d.data import DataStore
-    from tactile6d.geometry import text_to_poses
-    from tactile6d.io import read_tactile_image
-    from tactile6d.render import DigitRenderer, load_background_bgr
+    from tactile6d.cli import fidelity as command
+    from tactile6d.core.config import compose_config
+    from tactile6d.core.geometry import text_to_poses
+    from tactile6d.data.hdf5 import read_tactile_image
+    from tactile6d.data.third_party import DataStore
+    from tactile6d.sim.render import DigitRenderer, load_background_bgr
 
     cfg = compose_config([f"paths.data_dir={_data_dir()}"])
     store = DataStore(cfg.paths)

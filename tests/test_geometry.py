@@ -3,7 +3,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from tactile6d import geometry as g
+from tactile6d.core import geometry as g
 
 finite = st.floats(-10, 10, allow_nan=False, allow_infinity=False)
 vec3 = arrays(np.float64, 3, elements=finite)

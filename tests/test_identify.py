@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import geometry as g
-from tactile6d import identification
 from tactile6d.cli import main as cli_main
-from tactile6d.config import compose_config
-from tactile6d.errors import ArtifactError, ConfigError, InputError
-from tactile6d.estimator import Estimator
-from tactile6d.executor import Executor
-from tactile6d.identifier import Identifier, load_weights
-from tactile6d.sensor import sensor_poses_touching
-from tactile6d.settings import Settings
-from tactile6d.surface import sample_surface_even
+from tactile6d.core import geometry as g
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ArtifactError, ConfigError, InputError
+from tactile6d.core.sensor import sensor_poses_touching
+from tactile6d.core.settings import Settings
+from tactile6d.estimation import identity_model
+from tactile6d.estimation.estimator import Estimator
+from tactile6d.estimation.identifier import Identifier, load_weights
+from tactile6d.runtime.executor import Executor
+from tactile6d.sim.surface_sampling import sample_surface_even
 
 T_TRUE = g.make_pose(g.rotvec_to_rotmat(np.array([0.4, 0.9, -0.3])), [0.05, -0.02, 0.15])
 
@@ -39,19 +39,19 @@ def test_probabilities_match_the_softmax_written_out(seed):
     rng = np.random.default_rng(seed)
     scores = rng.uniform(0, 20, 7)
     scores[rng.integers(7)] = np.inf
-    np.testing.assert_allclose(identification.scores_to_probabilities(scores), probabilities_by_hand(scores),
+    np.testing.assert_allclose(identity_model.scores_to_probabilities(scores), probabilities_by_hand(scores),
                                rtol=1e-12, atol=1e-15)
 
 
 def test_large_scores_do_not_underflow_and_nothing_matched_gives_zeros():
-    p = identification.scores_to_probabilities(np.array([1000.0, 1001.0, np.inf]))
+    p = identity_model.scores_to_probabilities(np.array([1000.0, 1001.0, np.inf]))
     np.testing.assert_allclose(p, [1 / (1 + np.exp(-1)), np.exp(-1) / (1 + np.exp(-1)), 0.0])
-    assert identification.scores_to_probabilities(np.full(3, np.inf)).tolist() == [0.0, 0.0, 0.0]
+    assert identity_model.scores_to_probabilities(np.full(3, np.inf)).tolist() == [0.0, 0.0, 0.0]
 
 
 def test_a_feature_row_with_nan_scores_infinite():
     f = np.array([[1.0, 2.0, 0.5], [np.nan, np.nan, np.nan]])
-    s = identification.features_to_scores(f, np.array([1.0, 0.5, 2.0]))
+    s = identity_model.features_to_scores(f, np.array([1.0, 0.5, 2.0]))
     assert s[0] == pytest.approx(3.0) and s[1] == np.inf
 
 
@@ -61,19 +61,19 @@ def test_fitted_weights_recover_those_that_drew_the_labels():
     rng = np.random.default_rng(1)
     true_w = np.array([2.0, 0.5, 1.0])
     features = rng.uniform(0, 3, (3000, 6, 3))
-    p = identification.scores_to_probabilities(identification.features_to_scores(features, true_w))
+    p = identity_model.scores_to_probabilities(identity_model.features_to_scores(features, true_w))
     truth = np.array([rng.choice(6, p=row) for row in p])
-    w = identification.fit_weights(features, truth, l2=0.0)
+    w = identity_model.fit_weights(features, truth, l2=0.0)
     np.testing.assert_allclose(w, true_w, rtol=0.15)
-    assert identification.negative_log_likelihood(w, features, truth) <= \
-        identification.negative_log_likelihood(true_w, features, truth) + 1e-9
+    assert identity_model.negative_log_likelihood(w, features, truth) <= \
+        identity_model.negative_log_likelihood(true_w, features, truth) + 1e-9
 
 
 def test_fit_needs_labelled_scenes_of_the_right_shape():
     with pytest.raises(InputError, match="need features"):
-        identification.fit_weights(np.zeros((4, 1, 3)), np.zeros(4, int))
+        identity_model.fit_weights(np.zeros((4, 1, 3)), np.zeros(4, int))
     with pytest.raises(InputError, match="indices"):
-        identification.fit_weights(np.zeros((4, 3, 3)), np.full(4, 3))
+        identity_model.fit_weights(np.zeros((4, 3, 3)), np.full(4, 3))
 
 
 # ---- an identifier over two boxes of different widths -------------------------------------------
@@ -186,7 +186,7 @@ class FinishingInOrder(Executor):
 def test_the_guess_at_the_winner_changes_nothing(squeezed, monkeypatch, order, guess_wins):
     """A spread screen makes the full estimate of the object leading when one is left to screen. When the
     winner (box_100mm, index 1) is in by then, that estimate is the refinement; when it comes last, the
-    guess is a wrong box and the winner is estimated after. Either way the same identification."""
+    guess is a wrong box and the winner is estimated after. Either way the same identity_model."""
     T_sensors, angles = squeezed
     settings = landmark_settings(**{"select.method": "ours"})
     library = {f"box_{round(w * 1000)}mm": box_estimator(w, FaceAngleEncoder(angles), settings)
@@ -220,7 +220,7 @@ def test_an_identifier_without_weights_only_screens(squeezed):
     settings = landmark_settings(**{"select.method": "baseline"})
     identifier = Identifier({"a": box_estimator(0.10, None, settings)}, screen=SCREEN)
     found, _ = identifier.candidates(T_sensors)
-    assert found[0].matched and found[0].features.shape == (len(identification.FEATURES),)
+    assert found[0].matched and found[0].features.shape == (len(identity_model.FEATURES),)
     with pytest.raises(InputError, match="calibrated weights"):
         identifier.identify(T_sensors)
 
@@ -277,8 +277,8 @@ def prim_artifacts(tmp_path_factory):
 
 
 def test_the_command_takes_distractors_from_their_own_folder(prim_artifacts):
-    from tactile6d.commands.estimate import KnownObjects
-    from tactile6d.commands.identify import library_of
+    from tactile6d.cli.estimate import KnownObjects
+    from tactile6d.cli.identify import library_of
 
     known = KnownObjects(prim_artifacts, compose_config())
     assert library_of(None, known) == (["prim_box", "prim_cylinder"], ["shape_3"])
@@ -291,8 +291,8 @@ def test_the_command_takes_distractors_from_their_own_folder(prim_artifacts):
 
 def touching_sensors(artifacts, name, wanted):
     """Sensors at T_TRUE touching ``name``'s database points nearest the (point, normal) pairs ``wanted``."""
-    from tactile6d import layout
-    from tactile6d.io import read_artifact
+    from tactile6d.data import layout
+    from tactile6d.data.hdf5 import read_artifact
 
     surface = read_artifact(layout.surface_file(artifacts, name), "surface")
     points, normals = surface["points"], surface["normals"]
@@ -335,8 +335,8 @@ def test_spread_screens_give_the_same_identification(prim_artifacts, dask_cluste
 def test_a_worker_reloads_the_library_for_a_new_identifier(prim_artifacts, monkeypatch):
     """A long-lived worker (a cluster's) keeps one library per identifier: the same source is loaded
     once, a new identifier's (new token, the artifacts may have changed) replaces it."""
-    from tactile6d import executor
-    from tactile6d.identifier import LibrarySource, screen_task
+    from tactile6d.estimation.identifier import LibrarySource, screen_task
+    from tactile6d.runtime import executor
 
     cfg = compose_config(["select.method=baseline", "identify.weights=[1,1,1]", "identify.workers=1"])
     loads = []
@@ -373,26 +373,26 @@ def test_bench_identify_without_artifacts_names_what_is_missing(tmp_path, capsys
 
 
 def test_confusion_matrix_counts_by_hand():
-    m = identification.confusion_matrix(np.array([0, 0, 1, 2, 2, 2]), np.array([0, 1, 1, 2, 2, 0]), 3)
+    m = identity_model.confusion_matrix(np.array([0, 0, 1, 2, 2, 2]), np.array([0, 1, 1, 2, 2, 0]), 3)
     assert m.tolist() == [[1, 1, 0], [0, 1, 0], [1, 0, 2]]
     with pytest.raises(InputError):
-        identification.confusion_matrix(np.array([0, 3]), np.array([0, 0]), 3)
+        identity_model.confusion_matrix(np.array([0, 3]), np.array([0, 0]), 3)
 
 
 def test_the_confusion_figure_draws_one_cell_per_pair():
-    from tactile6d import viz
+    from tactile6d.evaluation import plots
 
-    fig = viz.confusion_figure(np.array([[3, 1], [0, 4]]), ["box", "can"], "test")
+    fig = plots.confusion_figure(np.array([[3, 1], [0, 4]]), ["box", "can"], "test")
     assert fig.axes[0].images[0].get_array().shape == (2, 2)
     assert sorted(t.get_text() for t in fig.axes[0].texts) == ["1", "3", "4"]
 
 
 def test_the_confusion_figure_leaves_out_distractors_nothing_was_taken_for():
-    from tactile6d import viz
+    from tactile6d.evaluation import plots
 
     # library: box, can (shown in the scenes), cone (taken for the can once), ball (never involved)
     matrix = np.array([[3, 0, 0, 0], [0, 3, 1, 0], [0, 0, 0, 0], [0, 0, 0, 0]])
-    ax = viz.confusion_figure(matrix, ["box", "can", "cone", "ball"], "test").axes[0]
+    ax = plots.confusion_figure(matrix, ["box", "can", "cone", "ball"], "test").axes[0]
     assert ax.images[0].get_array().shape == (2, 3)
     assert [t.get_text() for t in ax.get_xticklabels()] == ["box", "can", "cone"]
     assert [t.get_text() for t in ax.get_yticklabels()] == ["box", "can"]
@@ -401,9 +401,9 @@ def test_the_confusion_figure_leaves_out_distractors_nothing_was_taken_for():
 @pytest.mark.slow  # identifies two scenes against two objects through the stage
 def write_tiny_scenes(artifacts, name):
     """A scene set of two scenes: the box and the cylinder touched by three sensors each (blank images)."""
-    from tactile6d import layout
-    from tactile6d.io import write_artifact
-    from tactile6d.scenes import SceneSet
+    from tactile6d.data import layout
+    from tactile6d.data.hdf5 import write_artifact
+    from tactile6d.sim.scenes import SceneSet
 
     box = touching_sensors(artifacts, "prim_box", BOX_TOUCHES)
     cylinder = touching_sensors(artifacts, "prim_cylinder", [((0.03, 0.0, 0.0), (1, 0, 0)),
@@ -422,7 +422,7 @@ def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifa
     import json
 
     from stages import identify as identify_stage
-    from tactile6d import layout
+    from tactile6d.data import layout
 
     write_tiny_scenes(prim_artifacts, "tiny")
     assert identify_stage.main(["--scene-set", "tiny", f"paths.artifacts_dir={prim_artifacts}",
@@ -442,7 +442,7 @@ def test_the_calibration_stage_fits_weights_on_the_calibration_scenes(prim_artif
     import shutil
 
     from stages import calibrate_identify
-    from tactile6d import layout
+    from tactile6d.data import layout
 
     artifacts = tmp_path / "artifacts"  # a copy: the module's fixture has no calibration set to keep clean
     shutil.copytree(prim_artifacts, artifacts)
@@ -453,7 +453,7 @@ def test_the_calibration_stage_fits_weights_on_the_calibration_scenes(prim_artif
     out = json.loads(layout.identify_calibration_file(artifacts).read_text())
     assert out["objects"] == ["prim_box", "prim_cylinder", "shape_3"] and out["n_scenes"] == 2
     assert out["scene_set"] == "calibration"
-    assert out["features"] == list(identification.FEATURES) and len(out["weights"]) == len(identification.FEATURES)
+    assert out["features"] == list(identity_model.FEATURES) and len(out["weights"]) == len(identity_model.FEATURES)
     assert np.all(np.isfinite(out["weights"]))
     assert out["top1_on_calibration_scenes"] == 1.0
     # the identifier loads these weights when identify.weights is null
@@ -473,7 +473,7 @@ def units_library(prim_artifacts, tmp_path_factory):
 
     from test_estimator import write_tiny_autoencoder
 
-    from tactile6d.io import write_tactile_image
+    from tactile6d.data.hdf5 import write_tactile_image
 
     root = tmp_path_factory.mktemp("units")
     artifacts = root / "artifacts"

@@ -1,4 +1,4 @@
-"""Checks of plausibly wrong inputs (tactile6d.inputs): grey and BGR images, no-contact images, pose lines
+"""Checks of plausibly wrong inputs (tactile6d.perception.inputs): grey and BGR images, no-contact images, pose lines
 whose axis is not a unit vector, sensors whose bodies overlap, one sensor only."""
 
 import glob
@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import inputs
-from tactile6d.config import compose_config
-from tactile6d.errors import InputError
-from tactile6d.geometry import make_pose, random_rotations, text_to_poses
-from tactile6d.io import read_scene_dir, read_tactile_image
-from tactile6d.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
-from tactile6d.steps.encode import load_background
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import InputError
+from tactile6d.core.geometry import make_pose, random_rotations, text_to_poses
+from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
+from tactile6d.data.hdf5 import read_scene_dir, read_tactile_image
+from tactile6d.perception import inputs
+from tactile6d.perception.encode import load_background
 
 
 def triplet_folders(data_dir):
@@ -41,7 +41,7 @@ def test_no_image_of_the_papers_triplets_looks_bgr_and_every_swapped_one_does(da
 
 def test_no_rendered_image_looks_bgr_and_every_swapped_one_does(default_background):
     """A sphere pressed 0.5-2.5 mm at several rolls, rendered over the default background."""
-    from tactile6d.render import DigitRenderer
+    from tactile6d.sim.render import DigitRenderer
 
     renderer = DigitRenderer.from_default_config(np.ascontiguousarray(default_background[..., ::-1]))
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.02)

@@ -39,7 +39,7 @@ def run_elsewhere(bin_dir: Path, cwd: Path, *argv: str) -> subprocess.CompletedP
 
 def test_the_installed_package_has_its_config_and_not_the_checkouts(installed, tmp_path):
     out = run_elsewhere(installed, tmp_path, "python", "-c",
-                        "import tactile6d.config as c; print(c.CONF_DIR); "
+                        "import tactile6d.core.config as c; print(c.CONF_DIR); "
                         "cfg = c.compose_config(['preset=paper']); print(cfg.rank.refine, cfg.select.contacts)")
     assert out.returncode == 0, out.stderr
     conf_dir, preset = out.stdout.splitlines()

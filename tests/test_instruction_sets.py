@@ -1,4 +1,4 @@
-"""tactile6d.instruction_sets: every library capped at AVX2, so that runs give the same bits on every machine.
+"""tactile6d.runtime.instruction_sets: every library capped at AVX2, so that runs give the same bits on every machine.
 
 The unit tests check the environment it builds; the slow test runs a little of each library's work
 (tests/isa_child.py: a few autoencoder training steps, the paper's gradient descent, NumPy's transcendental
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from tactile6d import instruction_sets as isa
+from tactile6d.runtime import instruction_sets as isa
 
 HERE = Path(__file__).resolve().parent
 _spec = importlib.util.spec_from_file_location("cpu_disguise", HERE.parent / "scripts" / "cpu_disguise.py")

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from tactile6d import executor as ex
-from tactile6d.errors import Interrupted, exit_on_error
+from tactile6d.core.errors import Interrupted, exit_on_error
+from tactile6d.runtime import executor as ex
 
 HERE = Path(__file__).resolve().parent
 CHILD = HERE / "interrupt_child.py"

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from stages import make_scenes, prepare_object, sample_surface
-from tactile6d import contact, layout
-from tactile6d.io import read_artifact
-from tactile6d.scenes import CADDEO2023_T_WORLD_OBJECT
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.sim import contact_types
+from tactile6d.sim.scenes import CADDEO2023_T_WORLD_OBJECT
 
 pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
 
@@ -31,7 +32,7 @@ def test_caddeo2023_import(artifacts):
     assert art["names"].tolist() == [f"004_sugar_box/triplet_{k}" for k in range(1, 5)]  # the box has no triplets
     assert art["images"].shape == (4, 3, 320, 240, 3)
     np.testing.assert_allclose(art["T_world_object"], np.broadcast_to(CADDEO2023_T_WORLD_OBJECT, (4, 4, 4)))
-    assert set(art["contact_types"].ravel()) <= set(range(len(contact.CONTACT_TYPES)))
+    assert set(art["contact_types"].ravel()) <= set(range(len(contact_types.CONTACT_TYPES)))
 
 
 def test_validation_generation(artifacts):

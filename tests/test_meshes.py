@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import meshes
-from tactile6d.errors import MeshError
+from tactile6d.core.errors import MeshError
+from tactile6d.sim import meshes
 
 
 @pytest.mark.parametrize("name", meshes.PRIMITIVE_NAMES)

@@ -3,8 +3,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile6d import geometry as g
-from tactile6d import metrics as M
+from tactile6d.core import geometry as g
+from tactile6d.core import metrics as M
 
 
 def _pose(rotvec, t):

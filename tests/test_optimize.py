@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile6d import geometry as g
-from tactile6d import optimize as opt
-from tactile6d.errors import InputError
+from tactile6d.core import geometry as g
+from tactile6d.core.errors import InputError
+from tactile6d.estimation import optimize as opt
 
 HALF = np.array([0.05, 0.03, 0.08])  # a 10 x 6 x 16 cm box, the size of a YCB object
 
@@ -180,7 +180,8 @@ def test_gd_splits_over_two_cpu_devices_with_the_same_result():
         """
         import io, sys
         import numpy as np
-        from tactile6d import optimize as opt, geometry as g
+        from tactile6d.estimation import optimize as opt
+        from tactile6d.core import geometry as g
         assert opt.use_cpu_devices(2) == 2
         rng = np.random.default_rng(0)
         p = rng.normal(scale=0.05, size=(7, 3, 3)); s = p[0] + 0.1
@@ -286,10 +287,10 @@ def test_residuals_below_the_noise_floor_are_fitted_in_least_squares():
 
 
 def test_the_optimize_step_floors_the_fit_at_the_sensors_contact_error():
-    from tactile6d.contacts import Contacts
-    from tactile6d.settings import OptimizeSettings, SensorSettings
-    from tactile6d.config import default_section
-    from tactile6d.steps.optimize import optimize
+    from tactile6d.core.config import default_section
+    from tactile6d.core.settings import OptimizeSettings, SensorSettings
+    from tactile6d.estimation.optimize import optimize
+    from tactile6d.perception.contacts import Contacts
 
     rng = np.random.default_rng(8)
     p, s, _ = _scene(rng, 3, noise=0.002)

@@ -1,13 +1,13 @@
-"""tactile6d.perturb: a clean scene set as a real set-up gives it (drifted light, kinematic error), and the
+"""tactile6d.sim.perturb: a clean scene set as a real set-up gives it (drifted light, kinematic error), and the
 scene artifact that carries each sensor's own no-contact image."""
 
 import numpy as np
 import pytest
 
-from tactile6d import perturb, photometric
-from tactile6d.geometry import invert_pose, make_pose, rotmat_to_rotvec
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.scenes import SceneSet, scene_set_from_artifact
+from tactile6d.core.geometry import invert_pose, make_pose, rotmat_to_rotvec
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.sim import perturb
+from tactile6d.sim.scenes import SceneSet, scene_set_from_artifact
 
 S, L, H, W = 8, 3, 320, 240
 
@@ -37,10 +37,10 @@ def test_drifted_light_keeps_the_truth_and_gives_each_sensor_the_no_contact_imag
     assert 0 < again.sum() < S  # with half re-recorded, some of 8 scenes are and some are not
     for s in range(S):
         for i in range(L):
-            expected = photometric.drift_light(clean.images[s, i], gains[s, i], gammas[s, i])
+            expected = perturb.drift_image_light(clean.images[s, i], gains[s, i], gammas[s, i])
             assert np.abs(out.images[s, i].astype(int) - expected).mean() < 2.5  # plus noise of sigma 2
             if again[s]:  # recorded again under the drifted light
-                drifted = photometric.drift_light(background, gains[s, i], gammas[s, i]).astype(int)
+                drifted = perturb.drift_image_light(background, gains[s, i], gammas[s, i]).astype(int)
                 assert np.abs(out.backgrounds[s, i].astype(int) - drifted).mean() < 2.5
             else:  # the no-contact image of before the drift
                 assert np.array_equal(out.backgrounds[s, i], background)

@@ -1,4 +1,4 @@
-"""tactile6d.photometric: an image's light brought back to its no-contact image's.
+"""tactile6d.perception.photometric: an image's light brought back to its no-contact image's.
 
 The fast pieces are checked against naive references; the fit against drifts of known gain and gamma,
 on synthetic images and on rendered presses, whose contact point must not move."""
@@ -7,14 +7,16 @@ import warnings
 
 import numpy as np
 import pytest
+from test_contact_patch import BOX, SPHERE, press
 from test_estimator import small_patch_model
-from test_patch import BOX, SPHERE, press
 
-from tactile6d import patch, photometric
-from tactile6d import superquadrics as sq
-from tactile6d.render import DigitRenderer
-from tactile6d.steps import encode as encode_step
-from tactile6d.settings import SelectSettings
+from tactile6d.core.settings import SelectSettings
+from tactile6d.perception import contact_patch
+from tactile6d.perception import encode as encode_step
+from tactile6d.perception import photometric
+from tactile6d.sim import perturb
+from tactile6d.sim import superquadrics as sq
+from tactile6d.sim.render import DigitRenderer
 
 H, W = 320, 240
 
@@ -76,7 +78,7 @@ def test_lookup_tables_are_monotone_and_the_identity_leaves_an_image_as_it_is():
 
 def test_drift_light_is_the_documented_model():
     image = colourful_background()
-    out = photometric.drift_light(image, [1.1, 0.9, 1.0], [0.85, 1.2, 1.0])
+    out = perturb.drift_image_light(image, [1.1, 0.9, 1.0], [0.85, 1.2, 1.0])
     v = image[100, 50].astype(float)
     expected = np.rint(255 * np.array([1.1, 0.9, 1.0]) * (v / 255) ** np.array([0.85, 1.2, 1.0]))
     assert np.array_equal(out[100, 50], np.clip(expected, 0, 255))
@@ -93,14 +95,14 @@ def test_a_drift_is_recovered_under_a_contact_that_covers_most_of_the_gel(gain, 
     blob = np.sqrt(np.clip(1.0 - ((rows - 150) / 135.0) ** 2 - ((cols - 120) / 100.0) ** 2, 0.0, None))
     assert (blob > 0).mean() > 0.5
     touched = np.clip(background + blob[..., None] * np.array([40.0, 25.0, 30.0]), 0, 255)
-    image = noisy(photometric.drift_light(touched.astype(np.uint8), gain, gamma), 2.0, 3)
+    image = noisy(perturb.drift_image_light(touched.astype(np.uint8), gain, gamma), 2.0, 3)
     fit = photometric.fit_light(image, background)
     # Gain and gamma trade off over a channel's narrow range of values; the mapping itself is what counts:
     # each value the background takes, drifted and mapped back, within 2 grey levels.
     tables = photometric.lookup_tables(fit).astype(int)
     for c in range(3):
         values = np.unique(background[..., c])
-        drifted = photometric.drift_light(np.repeat(values[:, None], 3, axis=1)[None], gain, gamma)[0, :, c]
+        drifted = perturb.drift_image_light(np.repeat(values[:, None], 3, axis=1)[None], gain, gamma)[0, :, c]
         assert np.abs(tables[c][drifted] - values).max() <= 2, c
     aligned = photometric.apply_light(image, fit).astype(float)
     assert np.abs(aligned - touched).mean() < 2.0 < np.abs(image.astype(float) - touched).mean()
@@ -117,7 +119,7 @@ def test_an_image_under_its_own_light_is_left_nearly_as_it_is():
 
 def test_light_far_beyond_a_units_drift_is_reported_and_not_applied():
     background = colourful_background()
-    dimmed = photometric.drift_light(background, 0.4, 1.0)
+    dimmed = perturb.drift_image_light(background, 0.4, 1.0)
     fit = photometric.fit_light(dimmed, background)
     assert not fit.trustworthy and "gain" in fit.problems()[0]
     aligned, (reported,) = photometric.align_images(dimmed[None], background[None])
@@ -131,10 +133,10 @@ def test_light_far_beyond_a_units_drift_is_reported_and_not_applied():
 
 def test_a_fit_that_changes_an_image_by_less_than_the_threshold_is_not_applied():
     background = colourful_background()
-    slight = photometric.drift_light(background, 1.01, 1.0)  # about 1 grey level
+    slight = perturb.drift_image_light(background, 1.01, 1.0)  # about 1 grey level
     aligned, (fit,) = photometric.align_images(slight[None], background[None])
     assert np.array_equal(aligned[0], slight) and not fit.applied and fit.trustworthy
-    drifted = photometric.drift_light(background, 1.1, 0.9)
+    drifted = perturb.drift_image_light(background, 1.1, 0.9)
     aligned, (fit,) = photometric.align_images(drifted[None], background[None])
     assert fit.applied and np.abs(aligned[0].astype(int) - background).mean() < 1.0
 
@@ -179,22 +181,22 @@ def test_a_rendered_press_under_drifted_light_gives_the_same_contact_point(rende
     gain, gamma = drift
     model = small_patch_model()
     cache = {}
-    result, p_true, _, _ = press(renderer, lambda s: cache.setdefault(s, patch.shape_to_mesh(s)), shape, point,
+    result, p_true, _, _ = press(renderer, lambda s: cache.setdefault(s, contact_patch.shape_to_mesh(s)), shape, point,
                                  normal, depth=depth, tilt_axis=0.5, tilt=0.2, offset=(0.002, -0.001), seed=11)
     no_contact = renderer.no_contact(seed=12)
-    reference = patch.image_to_patch(result.image, no_contact, model)
-    drifted = noisy(photometric.drift_light(result.image, gain, gamma), 2.0, 13)
+    reference = contact_patch.image_to_patch(result.image, no_contact, model)
+    drifted = noisy(perturb.drift_image_light(result.image, gain, gamma), 2.0, 13)
     settings = SelectSettings.from_cfg(_select_section())
     aligned, fits = encode_step.align_light(settings, drifted[None], no_contact)
-    read = patch.image_to_patch(aligned[0], no_contact, model)
-    as_given = patch.image_to_patch(drifted, no_contact, model)
+    read = contact_patch.image_to_patch(aligned[0], no_contact, model)
+    as_given = contact_patch.image_to_patch(drifted, no_contact, model)
     assert read.contact and fits[0].trustworthy
     assert np.linalg.norm(read.point - reference.point) < 0.0005
     assert np.linalg.norm(as_given.point - reference.point) > 0.002
 
 
 def _select_section() -> dict:
-    from tactile6d.config import compose_config
+    from tactile6d.core.config import compose_config
 
     return dict(compose_config().select)
 

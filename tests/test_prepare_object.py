@@ -6,8 +6,8 @@ import shutil
 import pytest
 
 from stages import prepare_object
-from tactile6d import layout
-from tactile6d.io import read_artifact
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
 
 
 @pytest.mark.slow
@@ -31,7 +31,7 @@ def test_the_object_file_does_not_depend_on_where_the_data_directory_lies(tmp_pa
 def test_a_worker_count_below_one_is_named(stage, key, tmp_path):
     import importlib
 
-    from tactile6d.errors import ConfigError
+    from tactile6d.core.errors import ConfigError
 
     main = importlib.import_module(f"stages.{stage}").main
     with pytest.raises(ConfigError, match=f"{key} must be >= 1, got 0"):

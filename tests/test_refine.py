@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import geometry as g
-from tactile6d import refine
-from tactile6d.contact import sample_surface
-from tactile6d.sensor import contact_normals, contact_points, sensor_poses_touching
+from tactile6d.core import geometry as g
+from tactile6d.core.sensor import contact_normals, contact_points, sensor_poses_touching
+from tactile6d.estimation import refine
+from tactile6d.sim.surface_sampling import sample_surface
 
 
 def _cut_box():

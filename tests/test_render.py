@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import geometry as g
-from tactile6d import sensor
-from tactile6d.config import compose_config
-from tactile6d.errors import ConfigError, InputError, MeshError
-from tactile6d.render import DigitRenderer, gel_surface, mesh_arrays, pixel_rays
+from tactile6d.core import geometry as g
+from tactile6d.core import sensor
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ConfigError, InputError, MeshError
+from tactile6d.sim.render import DigitRenderer, gel_surface, mesh_arrays, pixel_rays
 
 H, W = sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH
 IDENTITY = np.eye(4)

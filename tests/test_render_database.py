@@ -7,12 +7,14 @@ import pytest
 import trimesh
 
 from stages import prepare_object, render_database, sample_surface
-from tactile6d import database, layout, sensor
-from tactile6d.config import compose_config
-from tactile6d.data import DataStore
-from tactile6d.errors import ArtifactError, ConfigError, InputError
-from tactile6d.io import read_artifact
-from tactile6d.render import DigitRenderer, load_background_bgr
+from tactile6d.core import sensor
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ArtifactError, ConfigError, InputError
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.data.third_party import DataStore
+from tactile6d.sim import database
+from tactile6d.sim.render import DigitRenderer, load_background_bgr
 
 M = 20
 H, W = sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH
@@ -145,7 +147,7 @@ def test_body_contact_flag_marks_what_strict_mode_refuses():
 
 
 def test_bench_render_prints_json_last(data_dir, capsys):
-    from tactile6d.commands import bench_render
+    from tactile6d.cli import bench_render
 
     assert bench_render.main(["-n", "16", f"paths.data_dir={data_dir}", "render.workers=1"]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])

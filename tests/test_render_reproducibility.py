@@ -1,7 +1,7 @@
 """DigitRenderer's images under other CPU code paths, each forced in a subprocess (scripts/render_reproducibility.py).
 
 A database rendered on another x86-64 machine must equal this one's (docs/reproducibility.md, "Across
-machines"). Every child runs capped at AVX2 as the pipeline's stages are (tactile6d.instruction_sets), and
+machines"). Every child runs capped at AVX2 as the pipeline's stages are (tactile6d.runtime.instruction_sets), and
 each setting forces one library onto another code path, the way a CPU with other instruction-set
 extensions would: every Embree intersector this CPU offers (SSE2 to AVX-512), NumPy's and OpenCV's lowest
 SIMD paths, OpenBLAS's oldest kernel. The renderer lets Embree only pick the triangle and shades with

@@ -31,7 +31,7 @@ def test_validation_table_has_no_paper_columns():
 
 def test_stage_time_table_groups_items_by_stage_and_sums_them(tmp_path):
     """From time files as the stages write them: one row per dvc.yaml stage, in the order they ran, then the total."""
-    from tactile6d import stage_clock
+    from tactile6d.runtime import stage_clock
 
     end = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=datetime.timezone.utc)
     for i, (stage, seconds) in enumerate([("render_database@002_master_chef_can", 120.0), ("train_ae", 400.0),
@@ -53,8 +53,8 @@ def test_stage_time_table_without_records_says_so():
 
 
 def test_confidence_section_tabulates_each_set_and_draws_the_reliability_diagram(tmp_path):
-    from tactile6d import layout
-    from tactile6d.io import write_json
+    from tactile6d.data import layout
+    from tactile6d.data.hdf5 import write_json
 
     bins = [{"low": 0.8, "high": 1.0, "count": 30, "predicted": 0.9, "observed": 0.93}]
     write_json(layout.metrics_file(tmp_path, "confidence"),

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from tactile6d import contact, scenes
-from tactile6d.geometry import make_pose, random_rotations
-from tactile6d.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
+from tactile6d.core.geometry import make_pose, random_rotations
+from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
+from tactile6d.sim import contact_types, scenes, surface_sampling
 
 
 def box_points(T, n, rng):
@@ -37,7 +37,7 @@ def test_bodies_overlap_matches_sampling():
 @pytest.fixture(scope="module")
 def box():
     mesh = trimesh.creation.box(extents=(0.10, 0.08, 0.06))
-    return mesh, contact.sample_surface(mesh)
+    return mesh, surface_sampling.sample_surface(mesh)
 
 
 def test_body_penetration(box):
@@ -55,7 +55,7 @@ def test_body_wholly_inside_the_object_penetrates():
     # A hollow-free big box with the sensor's whole body inside it: no surface sample lies in the body
     # box, yet the sensor is inside the solid (a candidate normal that faces inward places it there).
     mesh = trimesh.creation.box(extents=(0.30, 0.30, 0.30))
-    surface = contact.sample_surface(mesh, spacing=0.004)
+    surface = surface_sampling.sample_surface(mesh, spacing=0.004)
     T_inside = make_pose(np.eye(3), -BOX_CENTER)  # body box centred on the object's centre
     local = (surface.points - T_inside[:3, 3]) @ T_inside[:3, :3]
     assert not np.any(np.all(np.abs(local - BOX_CENTER) < BOX_HALF_EXTENTS, axis=1))  # the old test's blind spot
@@ -70,7 +70,7 @@ def test_validation_scene_mixes_types_without_collisions(box):
     spec = scenes.ValidationSpec(candidates_per_object=400)
     db = np.array([[1.0, 1.0, 1.0]])
     cand, cand_n, cand_t = scenes.validation_candidates(mesh, surface, db, spec, rng)
-    assert set(np.unique(cand_t)) >= {contact.FLAT, contact.EDGE}
+    assert set(np.unique(cand_t)) >= {contact_types.FLAT, contact_types.EDGE}
     seen = set()
     for _ in range(8):
         T, idx, depth = scenes.draw_validation_scene(mesh, surface, cand, cand_n, cand_t, spec, rng)

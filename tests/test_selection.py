@@ -3,9 +3,9 @@ import warnings
 import numpy as np
 import pytest
 
-from tactile6d import geometry as g
-from tactile6d import selection as sel
-from tactile6d.errors import InputError, NoMatch
+from tactile6d.core import geometry as g
+from tactile6d.core.errors import InputError, NoMatch
+from tactile6d.estimation import select as sel
 
 SELECT = {"delta_start": 5e-3, "step_down": 5e-4, "step_up": 1e-4, "delta_max": 5e-2}
 
@@ -384,9 +384,9 @@ def test_the_paper_rule_never_lowers_the_threshold_below_the_tolerance():
 
 
 def test_the_pose_sigma_settings_set_the_tolerances_as_documented():
-    from tactile6d.config import compose_config
-    from tactile6d.sensor import GEL_CENTER
-    from tactile6d.settings import SensorSettings
+    from tactile6d.core.config import compose_config
+    from tactile6d.core.sensor import GEL_CENTER
+    from tactile6d.core.settings import SensorSettings
 
     def sensors(mm, deg):
         cfg = compose_config([f"sensors.pose_sigma_mm={mm}", f"sensors.pose_sigma_deg={deg}"])
@@ -406,10 +406,10 @@ def test_the_pose_sigma_settings_set_the_tolerances_as_documented():
 
 
 def test_the_select_step_widens_the_normal_check_by_the_sensors_turn():
-    from tactile6d.config import compose_config
-    from tactile6d.contacts import Contacts
-    from tactile6d.settings import SelectSettings, SensorSettings
-    from tactile6d.steps.select import select
+    from tactile6d.core.config import compose_config
+    from tactile6d.core.settings import SelectSettings, SensorSettings
+    from tactile6d.estimation.select import select
+    from tactile6d.perception.contacts import Contacts
 
     # Two contacts on a box's top face 6 cm apart, both normals straight down the face's normal; the
     # database's points carry normals turned 47 deg and 0 deg: a pair angle 47 deg off, beyond the 45 deg

@@ -1,7 +1,7 @@
 import numpy as np
 
-from tactile6d import geometry as g
-from tactile6d import sensor
+from tactile6d.core import geometry as g
+from tactile6d.core import sensor
 
 
 def test_touching_pose_faces_the_surface_and_presses_the_gel():

@@ -8,13 +8,13 @@ from omegaconf import OmegaConf
 from test_estimator import apart_sensor_poses, write_tiny_autoencoder
 
 from stages import ablation, prepare_object, sample_surface, sensor_study
-from tactile6d import layout
-from tactile6d.config import compose_config
-from tactile6d.errors import ConfigError
-from tactile6d.geometry import make_pose, rotvec_to_rotmat
-from tactile6d.io import read_artifact, write_artifact
-from tactile6d.sensor import contact_normals, contact_points
-from tactile6d.sensor_subsets import sensor_subsets
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ConfigError
+from tactile6d.core.geometry import make_pose, rotvec_to_rotmat
+from tactile6d.core.sensor import contact_normals, contact_points
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.evaluation.sensor_subsets import sensor_subsets
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Each stage's time record (tactile6d.stage_clock): written with its fields by a stage that ends well
+"""Each stage's time record (tactile6d.runtime.stage_clock): written with its fields by a stage that ends well
 under DVC, never by one that fails, is interrupted or runs outside DVC."""
 
 import datetime
@@ -10,8 +10,8 @@ import textwrap
 
 import pytest
 
-from tactile6d import stage_clock
-from tactile6d.errors import DataError, exit_on_error
+from tactile6d.core.errors import DataError, exit_on_error
+from tactile6d.runtime import stage_clock
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -60,7 +60,7 @@ def test_the_time_counts_from_the_start_of_the_process(tmp_path):
         import sys, time
         time.sleep(0.6)  # stands for Python's start-up and a stage's imports
         sys.path.insert(0, {REPO!r})
-        from tactile6d.stage_clock import timed
+        from tactile6d.runtime.stage_clock import timed
         sys.exit(timed(lambda: time.sleep(0.2), {str(tmp_path)!r})())
     """)
     env = dict(os.environ, DVC_STAGE="select_tuples@caddeo2023-ours")

@@ -5,9 +5,9 @@ import pytest
 from omegaconf import OmegaConf
 from scipy.special import beta
 
-from tactile6d import sensor
-from tactile6d import superquadrics as sq
-from tactile6d.errors import ConfigError
+from tactile6d.core import sensor
+from tactile6d.core.errors import ConfigError
+from tactile6d.sim import superquadrics as sq
 
 CONF = Path(__file__).resolve().parent.parent / "conf" / "training_set" / "default.yaml"
 

@@ -4,13 +4,15 @@ import numpy as np
 import pytest
 
 from stages import make_training_set
-from tactile6d import contact, database, layout, sensor
-from tactile6d import superquadrics as sq
-from tactile6d.config import compose_config
-from tactile6d.data import DataStore
-from tactile6d.errors import ArtifactError, ConfigError
-from tactile6d.io import read_artifact
-from tactile6d.render import DigitRenderer, load_background_bgr
+from tactile6d.core import sensor
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ArtifactError, ConfigError
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.data.third_party import DataStore
+from tactile6d.sim import contact_types, database
+from tactile6d.sim import superquadrics as sq
+from tactile6d.sim.render import DigitRenderer, load_background_bgr
 
 pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
 
@@ -46,7 +48,7 @@ def test_images_and_parameters(built):
     assert set(ts["kinds"].tolist()) <= {0, 1, 2} and ts.attrs["kind_names"] == list(sq.KIND_NAMES)
     # Every contact touches the shape, so the database points' classifier finds a type for each.
     assert set(ts["contact_types"].tolist()) <= {0, 1, 2, 3}
-    assert ts.attrs["contact_type_names"] == list(contact.CONTACT_TYPES)
+    assert ts.attrs["contact_type_names"] == list(contact_types.CONTACT_TYPES)
     assert np.mean(ts["mask_pixels"] > 0) >= 0.9
     assert ts.path.stat().st_size < N * 320 * 240 * 3 / 4
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tactile6d import stage_clock
+from tactile6d.runtime import stage_clock
 
 spec = importlib.util.spec_from_file_location("update_readme", Path(__file__).parents[1] / "scripts" / "update_readme.py")
 update_readme = importlib.util.module_from_spec(spec)

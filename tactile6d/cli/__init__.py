@@ -1,0 +1,56 @@
+"""The ``tactile6d`` console script: dispatches to ``tactile6d.cli.<module>.main(argv)``, one module per command.
+
+Sub-command modules are imported only when used, so ``tactile6d --help`` stays fast and a command's
+heavy dependencies (torch, jax) load only for that command.
+
+Layer 8 of 8, the top: it imports from every layer below.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import sys
+
+from tactile6d.core.errors import exit_on_error
+
+# command words -> (module under tactile6d.cli, one-line help)
+COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
+    ("fidelity",): ("fidelity", "compare the simulator with the paper's 120 TACTO images (IoU, correlation, montage)"),
+    ("bench", "render"): ("bench_render", "images per second of the DIGIT simulator"),
+    ("bench", "estimate"): ("bench_estimate", "seconds per estimate (default, baseline, faithful) and peak memory"),
+    ("bench", "identify"): ("bench_identify", "seconds per identification of the paper's triplets against the object library"),
+    ("bench", "batch"): ("bench_batch", "start-up and per-scene seconds of one `estimate` call on the paper's triplets"),
+    ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
+    ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),
+}
+
+
+def usage() -> str:
+    lines = ["usage: tactile6d COMMAND [ARGS...]", "", "commands:"]
+    for words, (_, text) in COMMANDS.items():
+        lines.append(f"  {' '.join(words):<18}{text}")
+    lines.append("")
+    lines.append("Run `tactile6d COMMAND --help` for a command's options.")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for words, (module_name, _) in sorted(COMMANDS.items(), key=lambda kv: -len(kv[0])):
+        if tuple(argv[: len(words)]) == words:
+            try:
+                module = importlib.import_module(f"tactile6d.cli.{module_name}")
+            except ModuleNotFoundError as exc:
+                if exc.name == f"tactile6d.cli.{module_name}":
+                    print(f"error: command {' '.join(words)!r} is not available in this version", file=sys.stderr)
+                    return 2
+                raise
+            rest = argv[len(words) :]
+            return exit_on_error(functools.partial(module.main, rest))
+    print(usage(), file=sys.stdout if argv[:1] in (["-h"], ["--help"]) else sys.stderr)
+    return 0 if argv[:1] in (["-h"], ["--help"]) else 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

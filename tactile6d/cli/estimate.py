@@ -1,0 +1,434 @@
+"""``tactile6d estimate``: an object's pose from scene folders in the paper's triplet layout.
+
+Each scene folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor, world
+frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``background_<i>.png``
+(sensor i's own no-contact image, for every sensor): the images are then read against those, as a note
+on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
+order), which wins. One sensor only is estimated with a ``warning:`` line on stderr (the pose is
+under-determined). Scenes are given with
+``--scene DIR [DIR ...]`` and/or ``--scenes-root DIR`` (every folder under DIR that holds a
+``poses_sensors.txt``, in natural order: ``triplet_2`` before ``triplet_10``). All scenes run in one
+process; each object's artifacts are read once, from ``--artifacts`` (default: the config's
+``paths.artifacts_dir``), without DVC.
+
+The object: ``--object NAME`` for every scene, or ``--object auto``: each scene's object is the name
+of the folder that holds the scene folder, as in the paper's layout
+``caddeo2023/triplets/<object>/triplet_<k>``. An unknown name is an error listing the known ones: the
+objects with artifacts in the artifacts directory and those of the configured object sets
+(``conf/objects``).
+
+Output, per scene: the best ``T_world_object`` as one ``x y z ax ay az angle`` line, then a short
+summary (scores, confidence, selection, time per step); with several scenes each result is headed by a
+``# <scene folder> (<object>)`` line. The confidence is the calibrated probability that the best pose
+is within 1 cm ADI of the truth (stage calibrate_confidence; without its model in the artifacts, a
+note says there is none); when other ranked poses, far from the best, explain the contacts about
+equally well, an ``ambiguous:`` line gives their ranks (0 the best): the best may then be the wrong one.
+With ``--json``: one JSON object per line (JSON Lines) with the scene folder, the object, the top-K
+poses as 4x4 matrices, their scores, losses and penetrations, the selection diagnostics, the timings,
+``confidence`` (null without a model), ``ambiguous`` and ``distinct_poses`` (rank, pose and score of
+each pose that explains the contacts about equally well, the best first; empty without a model) and
+``load_seconds`` (the time spent loading the object's artifacts for that scene, 0 once they are
+loaded). A progress bar goes to stderr when there are more than a few scenes and stderr is a
+terminal.
+
+Errors: with one ``--scene``, any error ends the command with one ``error:`` line and exit status 2,
+as for a bad option, an unknown object or a bad config override in every case. With several scenes,
+a scene that fails (unreadable folder, bad pose line, no matching tuple, missing artifacts of its
+object) prints one ``error: <scene folder>: ...`` line on stderr, the others still print, and the
+exit status is 1.
+
+Config overrides (Hydra syntax, ``key=value``) pass through anywhere on the line, e.g.
+``select.method=baseline select.delta_h=0.05 select.N=2000``, or ``preset=paper`` for the paper's
+method end to end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from tactile6d.core.config import CONF_DIR, compose_config
+from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
+from tactile6d.core.geometry import pose_to_line
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir
+from tactile6d.estimation import confidence
+from tactile6d.estimation.estimator import Estimate, Estimator
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.perception import photometric
+from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+
+AUTO = "auto"
+# Below this many scenes a progress bar is more noise than help.
+PROGRESS_MIN_SCENES = 4
+# A Hydra override: key=value, +key=value, ++key=value, ~key[=value], group@package=option. Paths
+# have a '/' before any '=', so a scene folder is never taken for one.
+_OVERRIDE = re.compile(r"^(\+\+|\+|~)?[A-Za-z_][\w.]*(@[\w.]*)?(=|$)")
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    """Options, with the ``key=value`` words that landed among ``--scene``'s folders moved to overrides."""
+    parser = argparse.ArgumentParser(
+        prog="tactile6d estimate",
+        description=__doc__.split("\n")[0],
+        usage=("tactile6d estimate --object NAME|auto --scene DIR [DIR ...] [options] [key=value ...]\n"
+               "       tactile6d estimate --object NAME|auto --scenes-root DIR [options] [key=value ...]"),
+    )
+    parser.add_argument("--object", required=True, metavar="NAME|auto",
+                        help="object name for every scene, or 'auto': each scene's parent folder names it")
+    parser.add_argument("--scene", nargs="+", action="extend", default=[], metavar="DIR",
+                        help="scene folder(s): poses_sensors.txt + Image_heatmap_<i>.png")
+    parser.add_argument("--scenes-root", default=None, metavar="DIR",
+                        help="every folder under DIR holding a poses_sensors.txt is a scene")
+    parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
+    parser.add_argument("--top", type=int, default=None, help="poses to report (sets rank.top_k; default 5)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object per scene (JSON Lines)")
+    parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
+                        help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
+                             "per sensor in sensor order; 'from-scenes': each sensor's estimated from its images "
+                             f"in the scenes given (pixel median; at least {MIN_SCENES_FOR_BACKGROUND} scenes "
+                             "that touch in different places); default: each scene's background_<i>.png, else "
+                             "render.background")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
+    args = parser.parse_args(argv)
+    # ``--scene A B select.N=5`` puts the override among the folders (nargs='+' is greedy).
+    moved = [word for word in args.scene if is_override(word)]
+    args.scene = [word for word in args.scene if not is_override(word)]
+    args.background, args.overrides = split_overrides(args.background, moved + list(args.overrides))
+    if not args.scene and args.scenes_root is None:
+        parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
+    return args
+
+
+def split_overrides(words: list[str] | None, overrides: list[str]) -> tuple[list[str] | None, list[str]]:
+    """(the words of a greedy list option, e.g. ``--background``'s files, without the overrides that landed
+    among them; ``overrides`` with those moved in front)."""
+    if words is None:
+        return None, overrides
+    return [w for w in words if not is_override(w)], [w for w in words if is_override(w)] + overrides
+
+
+def is_override(word: str) -> bool:
+    """Whether a command-line word is a config override rather than a scene folder."""
+    # ``~key`` (delete a key) is the one override form without '='.
+    looks_like_one = bool(_OVERRIDE.match(word)) and ("=" in word or word.startswith("~"))
+    return looks_like_one and not Path(word).exists()
+
+
+def natural_key(path: Path) -> list:
+    """Sort key that orders the numbers in a path by value (``triplet_2`` before ``triplet_10``)."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.as_posix())]
+
+
+def find_scenes(root: str | Path) -> list[Path]:
+    """Every folder under ``root`` (itself included) that holds a ``poses_sensors.txt``, naturally sorted."""
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"scenes root {root} not found")
+    scenes = sorted({p.parent for p in root.rglob("poses_sensors.txt")}, key=natural_key)
+    if not scenes:
+        raise InputError(f"no scene folder (one holding poses_sensors.txt) under {root}")
+    return scenes
+
+
+def collect_scenes(args: argparse.Namespace) -> list[Path]:
+    """The ``--scene`` folders, then those found under ``--scenes-root``, each once."""
+    scenes = [Path(s) for s in args.scene]
+    if args.scenes_root is not None:
+        scenes += find_scenes(args.scenes_root)
+    return list(dict.fromkeys(scenes))
+
+
+class KnownObjects:
+    """The object names this command accepts: those with artifacts and those of the configured sets;
+    apart, the identification library's distractors (``identify.distractors``, or with artifacts under
+    ``layout.distractors_dir``)."""
+
+    def __init__(self, artifacts: str | Path, cfg):
+        self.artifacts = Path(artifacts)
+        self.with_artifacts = objects_with_artifacts(self.artifacts)
+        self.configured = configured_objects(cfg)
+        self.distractors_with_artifacts = objects_with_artifacts(layout.distractors_dir(self.artifacts))
+        self.distractors = list(dict.fromkeys([*self.distractors_with_artifacts,
+                                               *(str(n) for n in cfg.identify.distractors)]))
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.with_artifacts or name in self.configured
+
+    def check(self, name: str) -> None:
+        """InputError listing the known objects when ``name`` is not one."""
+        if name not in self:
+            raise InputError(f"unknown object {name!r}; {self.listing()}")
+
+    def listing(self) -> str:
+        have = ", ".join(self.with_artifacts) or "none"
+        others = ", ".join(o for o in self.configured if o not in self.with_artifacts)
+        return (f"objects with artifacts in {self.artifacts}: {have}"
+                + (f"; other configured objects (conf/objects): {others}" if others else ""))
+
+
+def objects_with_artifacts(artifacts: Path) -> list[str]:
+    """Objects with any per-object artifact in ``artifacts``: a missing one is then reported by
+    Estimator.from_artifacts with the dvc command that makes it."""
+    return sorted({p.stem for kind in ("objects", "surfaces", "latents") for p in (artifacts / kind).glob("*.h5")})
+
+
+def configured_objects(cfg) -> list[str]:
+    """The names of every object set in conf/objects (ycb, primitives), and the composed objects.names."""
+    import yaml
+
+    names = [str(n) for n in cfg.objects.names]
+    for path in sorted((CONF_DIR / "objects").glob("*.yaml")):
+        names += [str(n) for n in (yaml.safe_load(path.read_text()) or {}).get("names", [])]
+    return list(dict.fromkeys(names))
+
+
+def object_of(scene: Path, object_arg: str, known: KnownObjects) -> str:
+    """The object of one scene: ``--object``'s name, or with ``auto`` the scene's parent folder's name."""
+    if object_arg != AUTO:
+        return object_arg
+    name = scene.resolve().parent.name
+    if name not in known:
+        raise InputError(f"--object auto takes the object from the folder holding the scene, and {name!r} "
+                         f"is not a known object; {known.listing()}")
+    return name
+
+
+class EstimatorCache:
+    """One Estimator per object, loaded on first use; a load that failed fails again without retrying."""
+
+    def __init__(self, artifacts: str | Path, cfg, background: np.ndarray | None):
+        self.artifacts, self.cfg, self.background = artifacts, cfg, background
+        self._loaded: dict[str, tuple[Estimator | Tactile6dError, float]] = {}
+        self._reported: set[str] = set()
+
+    def load(self, name: str) -> Estimator:
+        """The object's Estimator, loading it if not yet done; the Tactile6dError of a failed load."""
+        if name not in self._loaded:
+            t0 = time.perf_counter()
+            try:
+                loaded = Estimator.from_artifacts(name, self.artifacts, self.cfg, background=self.background)
+            except ConfigError:
+                raise  # the same for every object: not worth remembering
+            except Tactile6dError as exc:
+                loaded = exc
+            self._loaded[name] = (loaded, time.perf_counter() - t0)
+        loaded = self._loaded[name][0]
+        if isinstance(loaded, Tactile6dError):
+            raise loaded
+        return loaded
+
+    def get(self, name: str) -> tuple[Estimator, float]:
+        """The object's Estimator and the seconds its loading took, counted once: 0.0 on later calls."""
+        estimator, seconds = self.load(name), self._loaded[name][1]
+        first = name not in self._reported
+        self._reported.add(name)
+        return estimator, seconds if first else 0.0
+
+
+def summary(result: Estimate, cfg) -> list[str]:
+    """A few human-readable lines: method, scores, confidence, selection diagnostics, time per step."""
+    sel = result.selection
+    lines = [
+        (
+            f"method {cfg.select.method}, solver {cfg.optimize.solver}: {len(result.poses)} distinct poses "
+            f"of {result.n_hypotheses} hypotheses"
+        ),
+        (
+            # The score is loss + deepest penetration only in the paper's method; by default it also counts
+            # render-and-compare and the sensor corrections, and forgives the sensors' expected error.
+            f"best: score {1000 * result.scores[0]:.2f} mm; loss {1000 * result.losses[0]:.2f} mm, "
+            f"deepest penetration {1000 * result.penetrations[0].max():.2f} mm"
+        ),
+        *confidence_lines(result),
+    ]
+    omegas = ", ".join(str(n) for n in sel.omega_sizes)
+    if cfg.select.method == "ours":
+        widened = [f"sensor {i} widened to {sel.delta_h[i]:.3g} rad" for i in np.flatnonzero(sel.widened)]
+        angles = ", ".join(f"{a:.3f}" for a in result.angles)
+        lines.append(f"latent angles {angles} rad; |Omega_i| {omegas} at delta_h {cfg.select.delta_h:g} rad"
+                     + (f" ({'; '.join(widened)})" if widened else ""))
+    else:
+        lines.append(f"baseline: |Omega_i| {omegas} (every database point)")
+    lines.append(f"{sel.tuples.shape[0]} tuples at delta_d {1000 * sel.delta_d:.2f} mm"
+                 + (" (capped at N)" if sel.capped else ""))
+    steps = ", ".join(f"{k} {v:.3f} s" for k, v in result.seconds.items())
+    lines.append(f"time: {steps}")
+    return lines
+
+
+def confidence_lines(result: Estimate) -> list[str]:
+    """The confidence line and, when other poses explain the contacts about equally well, one that says so;
+    one note when the artifacts hold no confidence model."""
+    within = f"{100 * confidence.SUCCESS_ADI:g} cm ADI"
+    if result.confidence is None:
+        return ["confidence: none (no confidence model; `dvc repro calibrate_confidence` makes it)"]
+    lines = [f"confidence {result.confidence:.2f} (P that the best pose is within {within})"]
+    if result.ambiguous:
+        ranks = ", ".join(str(i) for i in result.distinct)
+        lines.append(f"ambiguous: {len(result.distinct)} distinct poses (ranks {ranks}; 0 the best) explain "
+                     "the contacts about equally well: the best may be the wrong one")
+    return lines
+
+
+def estimate_scene(scene: Path, name: str, cache: EstimatorCache) -> tuple[Estimate, float]:
+    """One scene's estimate and the seconds spent loading its object's artifacts for it; its notes and
+    warnings (``scene_backgrounds``, ``warnings_to_lines``) go to stderr."""
+    T_world_sensors, images = read_scene_dir(scene)
+    backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), cache.background is not None)
+    if note:
+        write(note, sys.stderr)
+    estimator, load_seconds = cache.get(name)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnderdeterminedPoseWarning)
+        warnings.simplefilter("always", photometric.LightWarning)
+        result = estimator.estimate(T_world_sensors, images, backgrounds)
+    for line in warnings_to_lines(scene, caught):
+        write(line, sys.stderr)
+    return result, load_seconds
+
+
+FROM_SCENES = "from-scenes"  # --background's word for "estimate each sensor's from the scenes' images"
+MIN_SCENES_FOR_BACKGROUND = 5
+
+
+def backgrounds_from_scenes(scenes: list[Path]) -> tuple[np.ndarray, str]:
+    """Each sensor's no-contact image (L, 320, 240, 3) estimated from its images in ``scenes``
+    (``photometric.background_from_images``: the pixel median), for units whose own was never recorded,
+    and a note for stderr that says so. InputError for fewer than ``MIN_SCENES_FOR_BACKGROUND`` scenes or
+    scenes with different sensor counts."""
+    images = [read_scene_dir(scene)[1] for scene in scenes]
+    counts = sorted({len(i) for i in images})
+    if len(counts) > 1:
+        raise InputError(f"--background {FROM_SCENES}: the scenes have different sensor counts {counts}; each "
+                         "sensor's no-contact image is estimated from the same sensor in every scene")
+    per_sensor = [photometric.background_from_images(np.stack([i[k] for i in images]), MIN_SCENES_FOR_BACKGROUND)
+                  for k in range(counts[0])]
+    if per_sensor[0] is None:
+        raise InputError(f"--background {FROM_SCENES} needs at least {MIN_SCENES_FOR_BACKGROUND} scenes, touching in "
+                         f"different places, to estimate the no-contact images; got {len(scenes)}")
+    return np.stack(per_sensor), (f"note: each sensor's no-contact image estimated from its images in the "
+                                  f"{len(scenes)} scenes (pixel median): record them with nothing touching the "
+                                  "sensors for better readings")
+
+
+def scene_backgrounds(scene: Path, n_sensors: int, given: bool) -> tuple[np.ndarray | None, str | None]:
+    """The scene folder's own no-contact images (``hdf5.read_scene_backgrounds``; None when it has none, or
+    when ``--background`` was ``given``, which wins) and a note for stderr saying which are used."""
+    backgrounds = read_scene_backgrounds(scene, n_sensors)
+    if backgrounds is None:
+        return None, None
+    if given:
+        return None, f"note: {scene}: --background given, the folder's background_<i>.png are not used"
+    return backgrounds, (f"note: {scene}: each sensor's image is read against its own no-contact image "
+                         f"background_<i>.png (i = 0..{n_sensors - 1})")
+
+
+def warnings_to_lines(scene: Path, caught: list) -> list[str]:
+    """Caught warnings -> one ``warning: <scene>: <message>`` line each (the CLI's form of the API's warnings)."""
+    return [f"warning: {scene}: {' '.join(str(w.message).split())}" for w in caught]
+
+
+def as_json(scene: Path, name: str, result: Estimate, cfg, load_seconds: float) -> str:
+    """One scene's result as one line of JSON."""
+    out = {"object": name, "scene": str(scene), "method": cfg.select.method, "solver": cfg.optimize.solver,
+           "best": pose_to_line(result.best), **result.to_dict(), "load_seconds": load_seconds}
+    return json.dumps(out)
+
+
+def as_text(scene: Path, name: str, result: Estimate, cfg, load_seconds: float, header: bool) -> str:
+    """One scene's result as text: the best pose line first (after the header, when there is one)."""
+    lines = [f"# {scene} ({name})"] if header else []
+    lines += [pose_to_line(result.best), *summary(result, cfg)]
+    if not header:
+        lines.append(f"(loading the artifacts took {load_seconds:.2f} s)")
+    elif load_seconds > 0:
+        lines.append(f"(loading the artifacts of {name} took {load_seconds:.2f} s)")
+    return "\n".join(lines)
+
+
+def error_line(scene: Path, exc: Tactile6dError) -> str:
+    """``error: <scene>: <message>`` on one line; the folder is not repeated when the message names it."""
+    message = " ".join(str(exc).split())
+    return f"error: {message}" if str(scene) in message else f"error: {scene}: {message}"
+
+
+def write(text: str, stream) -> None:
+    """Print past the progress bar (tqdm clears and redraws it) and flush, so that a reader of a pipe
+    gets each result as soon as it is ready."""
+    from tqdm import tqdm
+
+    tqdm.write(text, file=stream)
+    stream.flush()
+
+
+def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: EstimatorCache,
+              known: KnownObjects) -> int:
+    """Every scene in turn; a failed scene's error goes to stderr and makes the exit status 1."""
+    from tqdm import tqdm
+
+    show_bar = not args.no_progress and len(scenes) >= PROGRESS_MIN_SCENES
+    failed = printed = 0
+    # disable=None: tqdm draws the bar only when stderr is a terminal, so logs stay free of it.
+    with tqdm(total=len(scenes), file=sys.stderr, unit="scene", desc="estimate",
+              disable=None if show_bar else True, leave=False) as bar:
+        for scene in scenes:
+            try:
+                name = object_of(scene, args.object, known)
+                result, load_seconds = estimate_scene(scene, name, cache)
+            except ConfigError:
+                raise  # a bad setting fails every scene alike: stop with exit status 2
+            except Tactile6dError as exc:
+                failed += 1
+                write(error_line(scene, exc), sys.stderr)
+            else:
+                if args.json:
+                    write(as_json(scene, name, result, cfg, load_seconds), sys.stdout)
+                else:
+                    # a blank line between results
+                    write(("\n" if printed else "") + as_text(scene, name, result, cfg, load_seconds, header=True),
+                          sys.stdout)
+                printed += 1
+            bar.update(1)
+    if failed:
+        write(f"error: {failed} of {len(scenes)} scenes failed", sys.stderr)
+    return 1 if failed else 0
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    overrides = list(args.overrides) + ([f"rank.top_k={args.top}"] if args.top is not None else [])
+    cfg = compose_config(overrides)
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
+    known = KnownObjects(artifacts, cfg)
+    if args.object != AUTO:
+        known.check(args.object)
+    scenes = collect_scenes(args)
+    if args.background == [FROM_SCENES]:
+        background, note = backgrounds_from_scenes(scenes)
+        write(note, sys.stderr)
+    else:
+        background = read_background_images(args.background) if args.background else None
+    cache = EstimatorCache(artifacts, cfg, background)
+
+    if len(scenes) == 1 and args.scenes_root is None:
+        # One scene, as before batches existed: no header, and any error ends the command (exit 2).
+        scene = scenes[0]
+        name = object_of(scene, args.object, known)
+        result, load_seconds = estimate_scene(scene, name, cache)
+        write(as_json(scene, name, result, cfg, load_seconds) if args.json
+              else as_text(scene, name, result, cfg, load_seconds, header=False), sys.stdout)
+        return 0
+    if args.object != AUTO:
+        # One object for all: missing artifacts would fail every scene, so they end the command here.
+        cache.load(args.object)
+    return run_batch(scenes, args, cfg, cache, known)

@@ -1,0 +1,116 @@
+"""``tactile6d identify``: which object of a library touches the sensors, and its pose.
+
+One scene folder in the paper's triplet layout (``poses_sensors.txt`` + ``Image_heatmap_<i>.png``, as
+for ``tactile6d estimate``) against the objects given with ``--objects`` (default: every object with
+artifacts in the artifacts directory, and every distractor with artifacts in its ``distractors/``
+folder, ``identify.distractors``). The images are read once; every object is estimated on them
+and scored with the weights the ``calibrate_identify`` stage fitted on the calibration scenes
+(``identify.calibration_scenes``; ``tactile6d.estimation.identifier``). Output: one line per object, most probable first, with its probability,
+score and best pose (``x y z ax ay az angle``, world frame), objects that match nothing last; then the
+time per step. ``--json``: one JSON object (``Identification.to_dict``). Errors: one ``error:`` line and
+exit status 2; objects without artifacts are all named in that one line. The sensors' no-contact images:
+``--background`` (one file for every sensor, or one per sensor in sensor order), else the scene folder's
+``background_<i>.png`` when it holds them (said on stderr), else ``render.background``; as for
+``tactile6d estimate``, one sensor only gives a ``warning:`` line.
+
+Config overrides (``key=value``) pass through, e.g. ``identify.screen.N=1000`` or
+``identify.weights=[1,1,10]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+from tactile6d.cli.estimate import KnownObjects, is_override, scene_backgrounds, split_overrides, warnings_to_lines
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import InputError
+from tactile6d.core.geometry import pose_to_line
+from tactile6d.data.hdf5 import read_background_images, read_scene_dir
+from tactile6d.estimation.identifier import Identification, Identifier
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+from tactile6d.perception.photometric import LightWarning
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="tactile6d identify", description=__doc__.split("\n")[0],
+        usage="tactile6d identify --scene DIR [--objects NAME ...] [options] [key=value ...]")
+    parser.add_argument("--scene", required=True, metavar="DIR",
+                        help="scene folder: poses_sensors.txt + Image_heatmap_<i>.png")
+    parser.add_argument("--objects", nargs="+", default=None, metavar="NAME",
+                        help="the candidate objects (default: every object with artifacts)")
+    parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
+                        help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
+                             "per sensor in sensor order; default: the scene's background_<i>.png, else "
+                             "render.background")
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
+    args = parser.parse_args(argv)
+    args.background, args.overrides = split_overrides(args.background, list(args.overrides))
+    if args.objects:  # ``--objects A B select.N=5`` puts the override among the names
+        args.overrides = [w for w in args.objects if is_override(w)] + list(args.overrides)
+        args.objects = [w for w in args.objects if not is_override(w)]
+    return args
+
+
+def as_text(result: Identification) -> str:
+    """One line per object, most probable first, then the time per step."""
+    lines = []
+    for rank, obj in enumerate(result.objects, start=1):
+        if obj.pose is None:
+            lines.append(f"{rank:>3}. {obj.name}: no match ({obj.candidate.why})")
+        else:
+            refined = " (full estimate)" if rank == 1 and result.refined else ""
+            lines.append(f"{rank:>3}. {obj.name}: p {obj.probability:.3f}, score {obj.score:.3f}; "
+                         f"pose{refined} {pose_to_line(obj.pose)}")
+    lines.append("time: " + ", ".join(f"{k} {v:.3f} s" for k, v in result.seconds.items()))
+    return "\n".join(lines)
+
+
+def library_of(names: list[str] | None, known: KnownObjects) -> tuple[list[str], list[str]]:
+    """(objects, distractors) of the library: ``names`` split into the two (a name with artifacts in the
+    artifacts directory is an object, else one of ``known.distractors`` is a distractor; InputError
+    for an unknown name), or without names every object and distractor with artifacts."""
+    if not names:
+        objects, distractors = known.with_artifacts, known.distractors_with_artifacts
+        if not objects and not distractors:
+            raise InputError(f"no objects to identify among: {known.listing()}")
+        return list(objects), list(distractors)
+    distractors = [n for n in names if n not in known.with_artifacts and n in known.distractors]
+    for name in names:
+        if name not in distractors:
+            known.check(name)
+    return [n for n in names if n not in distractors], distractors
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    cfg = compose_config(args.overrides)
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
+    known = KnownObjects(artifacts, cfg)
+    objects, distractors = library_of(args.objects, known)
+    T_world_sensors, images = read_scene_dir(args.scene)
+    background = read_background_images(args.background) if args.background else None
+    backgrounds, note = scene_backgrounds(Path(args.scene), len(T_world_sensors), background is not None)
+    if note:
+        print(note, file=sys.stderr)
+    with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors) as identifier:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UnderdeterminedPoseWarning)
+            warnings.simplefilter("always", LightWarning)
+            result = identifier.identify(T_world_sensors, images, backgrounds)
+    for line in warnings_to_lines(Path(args.scene), caught):
+        print(line, file=sys.stderr)
+    print(json.dumps({"scene": str(args.scene), **result.to_dict()}) if args.json else as_text(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,1 +1,0 @@
-"""One module per ``tactile6d`` sub-command; each exposes ``main(argv: list[str]) -> int``."""

@@ -1,0 +1,297 @@
+"""The estimator's settings: the ``select``, ``optimize``, ``rank`` and ``sensors`` config sections as checked,
+frozen dataclasses. Each section's keys are documented in its conf/<section>/default.yaml; this module
+holds no defaults of its own, so a missing key is a ConfigError naming it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactile6d.core.errors import ConfigError
+from tactile6d.core.sensor import GEL_CENTER
+
+METHODS = ("ours", "baseline")
+# Where a sensor's contact is read from: its landmark (the paper) or the patch its image shows (perception.contacts).
+CONTACT_SOURCES = ("landmark", "patch")
+# How the selection sets its distance threshold (estimation.select): the paper's adaptive rule, or the N best tuples.
+DELTA_D_RULES = ("paper", "best_n")
+SOLVERS = ("fast", "gd")
+
+
+def _fields(section: Mapping, cls) -> dict:
+    names = list(cls.__dataclass_fields__)
+    missing = [n for n in names if n not in section]
+    if missing:
+        raise ConfigError(f"config section for {cls.__name__} lacks keys {missing}")
+    return {n: section[n] for n in names}
+
+
+@dataclass(frozen=True)
+class SensorSettings:
+    """The ``sensors`` config section (conf/sensors/default.yaml): how far the sensor poses handed to the
+    estimator may be off, as a robot's forward kinematics gives them. Per axis, one standard deviation, in
+    each sensor's own frame; 0 and 0 declare the poses exact (simulation, the paper's method).
+
+    Every step reads the same error through the quantities below: selection's pair-distance and
+    normal tolerances, the fit's noise floor, the refinement's prior on each sensor's correction and the
+    ranking's penetration allowance.
+    """
+
+    pose_sigma_mm: float
+    pose_sigma_deg: float
+
+    @classmethod
+    def from_cfg(cls, section: Mapping) -> SensorSettings:
+        out = cls(**_fields(section, cls))
+        if not (out.pose_sigma_mm >= 0 and out.pose_sigma_deg >= 0):
+            raise ConfigError(f"sensors.pose_sigma_mm and sensors.pose_sigma_deg must be >= 0, "
+                              f"got {out.pose_sigma_mm}, {out.pose_sigma_deg}")
+        return out
+
+    @property
+    def exact(self) -> bool:
+        """Whether the sensor poses are declared exact (both sigmas 0)."""
+        return self.contact_sigma == 0
+
+    @property
+    def contact_sigma(self) -> float:
+        """m, per axis: how far a sensor's contact point is off when its pose is off by ``pose_sigma_mm``
+        and ``pose_sigma_deg``: the translation error and the rotation's at the gel (``sensor.GEL_CENTER``'s
+        distance from the sensor's origin), combined in quadrature. Also how deep a true pose appears to
+        press into such a sensor: the ranking's penetration allowance."""
+        lever = float(np.linalg.norm(GEL_CENTER))
+        return float(np.hypot(1e-3 * self.pose_sigma_mm, lever * np.radians(self.pose_sigma_deg)))
+
+    @property
+    def angle_sigma(self) -> float:
+        """rad, per axis: how far a sensor (and its contact normal) is turned."""
+        return float(np.radians(self.pose_sigma_deg))
+
+    @property
+    def pair_distance_tolerance(self) -> float:
+        """m: how far the distance between two sensors' contact points may be off, two standard deviations.
+        Two contact points each off by ``contact_sigma`` per axis move apart, along the line between them,
+        by a Gaussian of standard deviation sqrt(2) contact_sigma."""
+        return 2.0 * np.sqrt(2.0) * self.contact_sigma
+
+    @property
+    def pair_angle_tolerance(self) -> float:
+        """rad: how far an angle between two sensors' contact normals (or a normal and the line between
+        the contacts) may be off, two standard deviations: sqrt(2) angle_sigma for two sensors."""
+        return 2.0 * np.sqrt(2.0) * self.angle_sigma
+
+    @property
+    def correction_sigmas(self) -> tuple[float, float]:
+        """The refinement's prior on each sensor's correction: (m, rad), the shift of its contact point and
+        its turn, one standard deviation per axis. A sigma of 0 is taken as a thousandth of a millimetre or
+        degree: that part of the pose is as good as exact."""
+        return max(self.contact_sigma, 1e-6), float(np.radians(max(self.pose_sigma_deg, 1e-3)))
+
+
+@dataclass(frozen=True)
+class SelectSettings:
+    """The ``select`` config section (conf/select/default.yaml documents each key)."""
+
+    method: str
+    delta_h: float
+    delta_h_widen_step: float
+    delta_h_max: float
+    N: int
+    delta_d_start: float
+    delta_d_down: float
+    delta_d_up: float
+    delta_d_max: float
+    seed: int
+    delta_d_rule: str
+    normal_tol_deg: float | None
+    normal_max_sensors: int | None
+    contacts: str
+    centre_images: bool
+    align_light: bool
+
+    @classmethod
+    def from_cfg(cls, section: Mapping) -> SelectSettings:
+        out = cls(**_fields(section, cls))
+        if out.method not in METHODS:
+            raise ConfigError(f"select.method must be one of {', '.join(METHODS)}, not {out.method!r}")
+        if out.contacts not in CONTACT_SOURCES:
+            raise ConfigError(f"select.contacts must be one of {', '.join(CONTACT_SOURCES)}, not {out.contacts!r}")
+        if out.delta_d_rule not in DELTA_D_RULES:
+            raise ConfigError(f"select.delta_d_rule must be one of {', '.join(DELTA_D_RULES)}, "
+                              f"not {out.delta_d_rule!r}")
+        if not (out.delta_h > 0 and out.delta_h_widen_step > 0 and out.delta_h_max >= out.delta_h):
+            raise ConfigError(f"select needs delta_h > 0, delta_h_widen_step > 0 and delta_h_max >= delta_h; got "
+                              f"{out.delta_h}, {out.delta_h_widen_step}, {out.delta_h_max}")
+        if out.normal_tol_deg is not None and not out.normal_tol_deg > 0:
+            raise ConfigError(f"select.normal_tol_deg must be null (off) or > 0, got {out.normal_tol_deg}")
+        _check_max_sensors("select", out.normal_max_sensors)
+        return out
+
+    @property
+    def uses_normals(self) -> bool:
+        """Whether the normal check can apply at all (then the database normals are needed)."""
+        return self.normal_tol_deg is not None
+
+    @property
+    def reads_patches(self) -> bool:
+        """Whether each image's contact patch gives its sensor's contact: source ``patch``, method ``ours``
+        (the baseline reads no image, so it keeps the paper's landmarks)."""
+        return self.method == "ours" and self.contacts == "patch"
+
+    @property
+    def aligns_light(self) -> bool:
+        """Whether each image is brought to its no-contact image's light before it is read (method ``ours``:
+        the baseline reads no image)."""
+        return self.method == "ours" and bool(self.align_light)
+
+    @property
+    def centres_images(self) -> bool:
+        """Whether images are moved so their read contact sits at the centre before their angle is read."""
+        return self.reads_patches and bool(self.centre_images)
+
+    def normals_apply(self, n_sensors: int) -> bool:
+        """Whether the normal check applies to an estimate from ``n_sensors`` sensors."""
+        return self.uses_normals and (self.normal_max_sensors is None or n_sensors <= self.normal_max_sensors)
+
+
+def _check_max_sensors(section: str, value) -> None:
+    if value is not None and not (isinstance(value, int) and value >= 1):
+        raise ConfigError(f"{section}.normal_max_sensors must be null (any L) or an integer >= 1, got {value!r}")
+
+
+def needs_normals(settings: Settings) -> bool:
+    """Whether the database normals are read: normal-consistent selection or the orientation-aware loss."""
+    return settings.select.uses_normals or settings.optimize.normal_weight > 0
+
+
+@dataclass(frozen=True)
+class OptimizeSettings:
+    """The ``optimize`` config section (conf/optimize/default.yaml)."""
+
+    solver: str
+    n_irls: int
+    n_steps: int
+    gain_t: float
+    gain_r: float
+    offset: float
+    n_translations: int
+    precision: str
+    cpu_devices: int
+    seed: int
+    normal_weight: float
+    noise_floor: bool
+    normal_max_sensors: int | None
+
+    @classmethod
+    def from_cfg(cls, section: Mapping) -> OptimizeSettings:
+        out = cls(**_fields(section, cls))
+        if out.solver not in SOLVERS:
+            raise ConfigError(f"optimize.solver must be one of {', '.join(SOLVERS)}, not {out.solver!r}")
+        if out.normal_weight < 0:
+            raise ConfigError(f"optimize.normal_weight must be >= 0, got {out.normal_weight}")
+        if out.normal_weight > 0 and out.solver != "fast":
+            # the gd solver is the paper's, on positions only: say how to get it rather than drop the term
+            raise ConfigError(f"optimize.normal_weight={out.normal_weight} needs solver fast; with solver "
+                              f"{out.solver!r} set optimize.normal_weight=0 too (or use preset=paper)")
+        _check_max_sensors("optimize", out.normal_max_sensors)
+        return out
+
+    def noise_for(self, sensors: SensorSettings) -> tuple[float, float]:
+        """The fast solver's IRLS floor (m, rad): the contacts' expected error when ``noise_floor`` is on, else
+        (0, 0), the paper's plain distances."""
+        return (sensors.contact_sigma, sensors.angle_sigma) if self.noise_floor else (0.0, 0.0)
+
+    def normal_weight_for(self, n_sensors: int) -> float:
+        """The normal term's weight for an estimate from ``n_sensors`` sensors (0: positions only)."""
+        if self.normal_max_sensors is not None and n_sensors > self.normal_max_sensors:
+            return 0.0
+        return float(self.normal_weight)
+
+
+@dataclass(frozen=True)
+class RankSettings:
+    """The ``rank`` config section (conf/rank/default.yaml); ``dedup_rotation`` in degrees."""
+
+    top_k: int
+    dedup_translation: float
+    dedup_rotation: float
+    batch: int
+    candidates: int
+    refine: bool
+    refine_iterations: int
+    refine_normal_weight: float
+    refine_offset: float
+    refine_patch_points: int
+    refine_patch_weight: float
+    agreement_weight: float
+    agreement_step: int
+    agreement_free_margin: float
+    agreement_mask_weight: float
+    agreement_depth_weight: float
+    agreement_free_area_weight: float
+    agreement_free_depth_weight: float
+    pose_correction_weight: float
+
+    @classmethod
+    def from_cfg(cls, section: Mapping) -> RankSettings:
+        out = cls(**_fields(section, cls))
+        if out.top_k < 1 or out.batch < 1:
+            raise ConfigError(f"rank.top_k and rank.batch must be >= 1, got {out.top_k}, {out.batch}")
+        if out.rescores and out.candidates < out.top_k:
+            raise ConfigError(f"rank.candidates ({out.candidates}) must be >= rank.top_k ({out.top_k})")
+        if out.refine and (out.refine_iterations < 1 or out.refine_normal_weight < 0):
+            raise ConfigError("rank.refine needs refine_iterations >= 1 and refine_normal_weight >= 0")
+        if out.refine_patch_points < 0 or out.refine_patch_weight < 0:
+            raise ConfigError(f"rank.refine_patch_points and rank.refine_patch_weight must be >= 0, got "
+                              f"{out.refine_patch_points}, {out.refine_patch_weight}")
+        weights = (out.agreement_weight, out.agreement_free_margin, out.agreement_mask_weight,
+                   out.agreement_depth_weight, out.agreement_free_area_weight, out.agreement_free_depth_weight)
+        if min(weights) < 0:
+            raise ConfigError(f"rank.agreement_* weights and margin must be >= 0, got {weights}")
+        if not out.pose_correction_weight >= 0:
+            raise ConfigError(f"rank.pose_correction_weight must be >= 0, got {out.pose_correction_weight}")
+        if out.agreement_step < 1 or 240 % out.agreement_step or 320 % out.agreement_step:
+            raise ConfigError(f"rank.agreement_step must divide 240 and 320, got {out.agreement_step}")
+        return out
+
+    @property
+    def uses_agreement(self) -> bool:
+        """Whether render-and-compare re-scores the candidates (where the contacts were read from images)."""
+        return self.agreement_weight > 0
+
+    @property
+    def rescores(self) -> bool:
+        """Whether the best ``candidates`` poses are re-scored (refined and/or rendered and compared)."""
+        return self.refine or self.uses_agreement
+
+
+@dataclass(frozen=True)
+class Settings:
+    """All the estimator reads from the config: the select, optimize, rank and sensors sections."""
+
+    select: SelectSettings
+    optimize: OptimizeSettings
+    rank: RankSettings
+    sensors: SensorSettings
+
+    @classmethod
+    def from_cfg(cls, cfg: Mapping) -> Settings:
+        missing = [k for k in ("select", "optimize", "rank", "sensors") if k not in cfg]
+        if missing:
+            raise ConfigError(f"config lacks sections {missing}")
+        return cls(
+            SelectSettings.from_cfg(cfg["select"]),
+            OptimizeSettings.from_cfg(cfg["optimize"]),
+            RankSettings.from_cfg(cfg["rank"]),
+            SensorSettings.from_cfg(cfg["sensors"]),
+        )
+
+    @property
+    def corrects_sensors(self) -> bool:
+        """Whether the refinement estimates each sensor's small pose error beside the object's pose
+        (``refine.refine_poses_and_sensors``): refinement on and the sensor poses not declared exact."""
+        return self.rank.refine and not self.sensors.exact
+

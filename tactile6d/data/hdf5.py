@@ -1,0 +1,267 @@
+"""HDF5 artifacts: atomic writes, stamped with their schema and config, validated on reading.
+
+Every artifact a stage writes is one HDF5 file whose root attributes say what it is:
+``schema`` (a name from ``tactile6d.data.schemas.SCHEMAS``), ``schema_version``, ``config`` (the JSON of the config sections
+it was made with), ``tactile6d_version``. Writing goes to a temporary file beside the target and is
+renamed into place only once complete, so a crash never leaves a half-written artifact under the real
+name. Reading checks the stamp and the datasets the schema requires, and fails with one line that names
+the file, what is wrong, and the stage that makes it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from tactile6d import __version__
+from tactile6d.core.errors import ArtifactError
+from tactile6d.data.schemas import SCHEMAS, Schema
+
+
+def get_schema(name: str) -> Schema:
+    """The schema called ``name`` (``tactile6d.data.schemas.SCHEMAS``)."""
+    if name not in SCHEMAS:
+        raise ValueError(f"unknown artifact schema {name!r}")
+    return SCHEMAS[name]
+
+
+def _remake_hint(schema: Schema) -> str:
+    return f"it is made by stage '{schema.stage}' (run `dvc repro {schema.stage}`)"
+
+
+def write_artifact(
+    path: str | os.PathLike,
+    schema: str,
+    datasets: Mapping[str, Any],
+    attrs: Mapping[str, Any] | None = None,
+    config: Mapping[str, Any] | None = None,
+    compression: str | None = None,
+) -> Path:
+    """Write an artifact atomically.
+
+    ``datasets`` maps names (``a/b`` makes groups) to arrays; ``attrs`` are extra root attributes
+    (JSON-serialisable values); ``config`` is stamped as JSON. ``compression`` ('gzip' or 'lzf')
+    applies to arrays of 2 or more dimensions, chunked along the first axis.
+    """
+    spec = get_schema(schema)
+    missing = [name for name in spec.datasets if name not in datasets]
+    if missing:
+        raise ValueError(f"artifact of schema {schema!r} lacks datasets {missing}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
+    os.close(fd)
+    try:
+        with h5py.File(tmp_name, "w") as f:
+            f.attrs["schema"] = spec.name
+            f.attrs["schema_version"] = spec.version
+            f.attrs["tactile6d_version"] = __version__
+            f.attrs["config"] = json.dumps(config or {}, sort_keys=True, default=str)
+            for key, value in (attrs or {}).items():
+                f.attrs[key] = json.dumps(value, default=str)
+            for name, value in datasets.items():
+                array = np.asarray(value)
+                if array.dtype.kind == "U":
+                    array = array.astype(h5py.string_dtype())
+                kwargs = {}
+                if compression and array.ndim >= 2 and array.size > 0:
+                    kwargs = {"compression": compression, "chunks": (1,) + array.shape[1:] if array.ndim >= 3 else True}
+                f.create_dataset(name, data=array, **kwargs)
+        os.replace(tmp_name, path)
+    except BaseException:
+        # Nothing may remain under either name when the write did not complete.
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return path
+
+
+@dataclass
+class Artifact:
+    """A validated artifact read into memory."""
+
+    path: Path
+    schema: str
+    config: dict
+    attrs: dict
+    data: dict[str, np.ndarray]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.data[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.data
+
+
+def _read_datasets(group: h5py.Group, prefix: str = "") -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for key, item in group.items():
+        name = f"{prefix}{key}"
+        if isinstance(item, h5py.Group):
+            out.update(_read_datasets(item, name + "/"))
+        else:
+            value = item[()]
+            if item.dtype.kind == "O":
+                value = item.asstr()[()]
+            out[name] = value
+    return out
+
+
+def read_artifact(path: str | os.PathLike, schema: str) -> Artifact:
+    """Read and validate an artifact of the given schema; ArtifactError (one line) if anything is off."""
+    spec = get_schema(schema)
+    path = Path(path)
+    hint = _remake_hint(spec)
+    if not path.is_file():
+        raise ArtifactError(f"{path}: missing; {hint}")
+    try:
+        with h5py.File(path, "r") as f:
+            found = f.attrs.get("schema")
+            if found is None:
+                raise ArtifactError(f"{path}: not a tactile6d artifact (no schema stamp); {hint}")
+            found = found.decode() if isinstance(found, bytes) else str(found)
+            if found != spec.name:
+                raise ArtifactError(f"{path}: schema is {found!r} but {spec.name!r} was expected; {hint}")
+            version = int(f.attrs.get("schema_version", -1))
+            if version != spec.version:
+                raise ArtifactError(
+                    f"{path}: schema {spec.name!r} version {version}, this code reads version {spec.version}; {hint}"
+                )
+            missing = [name for name in spec.datasets if name not in f]
+            if missing:
+                raise ArtifactError(f"{path}: datasets {missing} missing; {hint}")
+            data = _read_datasets(f)
+            config = json.loads(f.attrs.get("config", "{}"))
+            attrs = {
+                k: json.loads(v)
+                for k, v in f.attrs.items()
+                if k not in ("schema", "schema_version", "config", "tactile6d_version")
+            }
+    except ArtifactError:
+        raise
+    except (OSError, KeyError, ValueError) as exc:
+        raise ArtifactError(f"{path}: unreadable or corrupt HDF5 ({' '.join(str(exc).split())}); {hint}") from exc
+    return Artifact(path=path, schema=spec.name, config=config, attrs=attrs, data=data)
+
+
+def write_json(path: str | os.PathLike, obj: Any) -> Path:
+    """Write JSON atomically (metrics files that DVC reads)."""
+    return write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=float) + "\n")
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write a text file atomically (temporary file beside it, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp_name, path)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return path
+
+
+# --- tactile images and scene folders in the paper's triplet layout ---------------------------------
+
+TACTILE_IMAGE_SHAPE = (320, 240, 3)  # rows (sensor z) x columns (sensor y) x RGB
+
+
+def read_tactile_image(path: str | os.PathLike) -> np.ndarray:
+    """A DIGIT image file -> (320, 240, 3) uint8 RGB. InputError if unreadable or of another size."""
+    import cv2
+
+    from tactile6d.core.errors import InputError
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(f"{path}: not a readable image")
+    if image.shape != TACTILE_IMAGE_SHAPE:
+        raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, a DIGIT image is 240 wide x 320 high")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def write_tactile_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """(320, 240, 3) uint8 RGB -> PNG file."""
+    import cv2
+
+    cv2.imwrite(str(path), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR))
+
+
+def read_scene_dir(directory: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """A scene folder in the paper's triplet layout -> T_world_sensors (L, 4, 4), images (L, 320, 240, 3).
+
+    The folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor) and
+    ``Image_heatmap_<i>.png`` for i = 0..L-1 (and, optionally, the sensors' no-contact images:
+    ``read_scene_backgrounds``). InputError names what is missing or inconsistent.
+    """
+    from tactile6d.core.errors import InputError
+    from tactile6d.core.geometry import text_to_poses
+
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(f"scene folder {directory} not found")
+    pose_file = directory / "poses_sensors.txt"
+    if not pose_file.is_file():
+        raise InputError(f"{directory}: poses_sensors.txt missing")
+    try:
+        poses = text_to_poses(pose_file.read_text())
+    except ValueError as exc:
+        raise InputError(f"{pose_file}: {exc}") from exc
+    image_files = sorted(directory.glob("Image_heatmap_*.png"), key=lambda p: p.stem)
+    expected = [directory / f"Image_heatmap_{i}.png" for i in range(len(poses))]
+    missing = [p.name for p in expected if not p.is_file()]
+    if missing:
+        raise InputError(f"{directory}: {len(poses)} sensor poses but image(s) {', '.join(missing)} missing")
+    if len(image_files) != len(poses):
+        raise InputError(f"{directory}: {len(image_files)} images but {len(poses)} sensor poses")
+    return poses, np.stack([read_tactile_image(p) for p in expected])
+
+
+SCENE_BACKGROUND = "background_{}.png"  # sensor i's own no-contact image in a scene folder
+
+
+def read_background_images(paths: list[str | os.PathLike]) -> np.ndarray:
+    """No-contact image files -> (320, 240, 3) uint8 RGB for one file (every sensor's), or
+    (L, 320, 240, 3) for L files (one per sensor, in sensor order). InputError naming the file that is
+    missing or unreadable."""
+    from tactile6d.core.errors import InputError
+
+    if len(paths) == 0:
+        raise InputError("no background image file given")
+    images = []
+    for path in paths:
+        if not Path(path).is_file():
+            raise InputError(f"background {path} not found")
+        try:
+            images.append(read_tactile_image(path))
+        except InputError as exc:
+            raise InputError(f"background {exc}") from exc
+    return images[0] if len(images) == 1 else np.stack(images)
+
+
+def read_scene_backgrounds(directory: str | os.PathLike, n_sensors: int) -> np.ndarray | None:
+    """The sensors' own no-contact images of a scene folder, ``background_<i>.png`` for i = 0..L-1 beside
+    ``Image_heatmap_<i>.png`` -> (L, 320, 240, 3) uint8 RGB, or None when the folder holds none.
+    InputError when only some sensors have one (naming the missing ones) or one is unreadable."""
+    from tactile6d.core.errors import InputError
+
+    directory = Path(directory)
+    expected = [directory / SCENE_BACKGROUND.format(i) for i in range(n_sensors)]
+    present = [p.is_file() for p in expected]
+    if not any(present):
+        return None
+    if not all(present):
+        missing = ", ".join(p.name for p, here in zip(expected, present) if not here)
+        raise InputError(f"{directory}: {sum(present)} of {n_sensors} sensors have a no-contact image "
+                         f"background_<i>.png; {missing} missing (give every sensor's, or none)")
+    return read_background_images(expected)[None] if n_sensors == 1 else read_background_images(expected)

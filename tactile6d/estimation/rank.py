@@ -1,0 +1,332 @@
+"""Collision-aware ranking of pose hypotheses (docs/design.md, The method).
+
+Score ``R_j = E_j + max_i d_ij``: the optimiser's loss plus the deepest penetration of the object at
+pose j into any sensor's body. Near-duplicate poses (translations within ``tol_translation`` and
+rotations within ``tol_rotation`` of a better-scored pose) are collapsed, then the ``top_k`` lowest
+scores are returned, best first.
+
+Only the poses that can still enter the top k are scored (branch and bound). Each pose carries a
+lower bound on its score, at first its loss (depths are >= 0). A batch of the poses with the lowest
+bounds is taken at a time: a pose whose bound came from the loss gets the first (cheapest) depth
+bound function applied, one with the first bound gets the second, and so on; one with all bounds
+gets its exact depths. This stops as soon as no unscored pose's bound is below the k-th best distinct
+score so far: no unscored pose can then beat it, nor (coming later in score order) hide one of the top
+k as its duplicate. The result is the same as scoring every pose (``rank_poses_brute_force``, checked
+in the tests), provided every bound is a true lower bound. A pose's depths are the depth function's,
+raised to the bounds already computed for it (so the function may leave the bounds out, as
+``collision.poses_to_fcl_depths`` does). Ties in score are broken by input position.
+
+The step (what the estimator and the stage call): step 4, rank: the best distinct poses by loss + deepest sensor penetration, optionally re-scored by
+surface refinement and by render-and-compare, with what it loads (the object's convex collision pieces
+and, for the re-scoring, its mesh and surface samples).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from tactile6d.core.errors import InputError
+from tactile6d.core.geometry import rotation_angle
+from tactile6d.core.settings import RankSettings, SensorSettings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.data.object_artifacts import require
+from tactile6d.estimation import collision
+from tactile6d.estimation import refine as refinement
+from tactile6d.estimation import render_and_compare
+from tactile6d.perception.contacts import Contacts, sensors_to_landmark_contacts
+from tactile6d.sim.meshes import unpack_pieces
+
+
+@dataclass(frozen=True)
+class RankedPoses:
+    """The top k distinct poses, best first.
+
+    poses (K, 4, 4) ``T_world_object``; scores (K,) m; losses (K,) m; penetrations (K, L) m;
+    index (K,) positions in the ranked input; n_scored how many poses had their depths computed.
+    """
+
+    poses: np.ndarray
+    scores: np.ndarray
+    losses: np.ndarray
+    penetrations: np.ndarray
+    index: np.ndarray
+    n_scored: int
+
+
+def distinct_in_order(poses: np.ndarray, order: np.ndarray, tol_translation: float, tol_rotation: float, limit: int) -> list[int]:
+    """Greedy de-duplication: walk ``order`` (indices into poses (P, 4, 4)) and keep a pose unless it
+    is within tol_translation (m) and tol_rotation (rad) of one already kept; stop at ``limit`` kept.
+    Returns the kept indices, in walking order.
+
+    Vectorised over the walk: each pose kept strikes out at once every later pose that duplicates it, so
+    the cost is one array operation per kept pose, not one per pose walked (the optimiser's hypotheses
+    come in tight clusters, so most poses walked are duplicates). Same decisions, bit for bit, as the
+    pose-by-pose walk (``tests/test_collision.py``'s reference).
+    """
+    order = np.asarray(order, dtype=np.int64).reshape(-1)
+    translations = poses[order, :3, 3]
+    rotations = poses[order, :3, :3]
+    free = np.ones(len(order), dtype=bool)  # not a duplicate of a pose kept so far
+    kept: list[int] = []
+    start = 0
+    while len(kept) < limit:
+        ahead = np.flatnonzero(free[start:])
+        if ahead.size == 0:
+            break
+        at = start + int(ahead[0])
+        kept.append(int(order[at]))
+        start = at + 1
+        later = start + ahead[1:] - ahead[0] - 1  # the free positions after this one
+        near_t = later[np.linalg.norm(translations[at] - translations[later], axis=1) <= tol_translation]
+        if near_t.size:
+            free[near_t[rotation_angle(rotations[at], rotations[near_t]) <= tol_rotation]] = False
+    return kept
+
+
+def penetration_cost(depths: np.ndarray, allowance: float = 0.0) -> np.ndarray:
+    """(P, L) penetration depths (m) -> (P,) what a pose's score pays for them: the deepest, less
+    ``allowance`` (the sensor poses' expected error: a true pose seen through sensor poses off by a
+    millimetre penetrates a sensor by about that much), never below 0."""
+    return np.maximum(np.asarray(depths).max(axis=1) - allowance, 0.0)
+
+
+def rank_poses(
+    poses: np.ndarray,
+    losses: np.ndarray,
+    penetrations: Callable[[np.ndarray], np.ndarray],
+    top_k: int,
+    tol_translation: float,
+    tol_rotation: float,
+    depth_bounds: Sequence[Callable[[np.ndarray], np.ndarray]] = (),
+    batch: int = 256,
+    allowance: float = 0.0,
+) -> RankedPoses:
+    """The top_k distinct poses by R = E + max(max_i d_i - allowance, 0), scoring only the poses that can
+    make it.
+
+    poses (P, 4, 4), losses (P,) m, penetrations: a function (B, 4, 4) -> (B, L) depths in metres
+    (e.g. ``functools.partial(collision.poses_to_fcl_depths, model, T_world_sensor=...)``), which are
+    raised to the pose's bounds; top_k, tol_translation m, tol_rotation rad, depth_bounds: functions
+    (B, 4, 4) -> (B, L) lower bounds on the depths, cheapest first; batch: poses handled per step;
+    allowance: m of penetration that costs nothing (``penetration_cost``). The depths returned are the
+    penetrations themselves.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    losses = np.asarray(losses, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or losses.shape != poses.shape[:1] or poses.shape[0] == 0:
+        raise InputError(f"need poses (P, 4, 4) and losses (P,) with P >= 1, got {poses.shape}, {losses.shape}")
+    if top_k < 1:
+        raise InputError(f"top_k must be >= 1, got {top_k}")
+    n_levels = len(depth_bounds)
+    key = losses.copy()  # lower bound on each pose's score
+    level = np.zeros(len(losses), dtype=np.int64)  # bounds applied so far; n_levels + 1 = scored
+    lower = None  # (P, L) the largest depth bound computed so far for each pose and sensor
+    scored = np.zeros(0, dtype=np.int64)
+    depth_rows, scores = [], np.zeros(0)
+    kept: list[int] = []
+    while True:
+        threshold = scores[kept[-1]] if len(kept) == top_k else np.inf
+        open_ = np.flatnonzero((level <= n_levels) & (key < threshold))
+        if open_.size == 0:
+            break
+        if open_.size > batch:
+            # The batch lowest bounds, ties by input position.
+            open_ = open_[np.lexsort((open_, key[open_]))[:batch]]
+        # Each pose in the batch moves one step: to its next bound, or (all bounds known) to its depths.
+        at = level[open_]
+        for lvl in range(n_levels):
+            chunk = open_[at == lvl]
+            if chunk.size:
+                bound = np.asarray(depth_bounds[lvl](poses[chunk]), dtype=np.float64)
+                if lower is None:
+                    lower = np.zeros((len(poses), bound.shape[1]))
+                lower[chunk] = np.maximum(lower[chunk], bound)
+                key[chunk] = np.maximum(key[chunk], losses[chunk] + penetration_cost(bound, allowance))
+                level[chunk] = lvl + 1
+        chunk = open_[at == n_levels]
+        if chunk.size:
+            depths = np.asarray(penetrations(poses[chunk]), dtype=np.float64)
+            if lower is not None:
+                depths = np.maximum(depths, lower[chunk])
+            level[chunk] = n_levels + 1
+            depth_rows.append(depths)
+            scored = np.concatenate([scored, chunk])
+            scores = np.concatenate([scores, losses[chunk] + penetration_cost(depths, allowance)])
+            # Positions into `scored`, best score first, ties by input position.
+            kept = distinct_in_order(poses[scored], np.lexsort((scored, scores)), tol_translation, tol_rotation, top_k)
+    depths = np.concatenate(depth_rows)
+    return RankedPoses(
+        poses=poses[scored[kept]],
+        scores=scores[kept],
+        losses=losses[scored[kept]],
+        penetrations=depths[kept],
+        index=scored[kept],
+        n_scored=len(scored),
+    )
+
+
+def rank_poses_brute_force(
+    poses: np.ndarray,
+    losses: np.ndarray,
+    penetrations: Callable[[np.ndarray], np.ndarray],
+    top_k: int,
+    tol_translation: float,
+    tol_rotation: float,
+    allowance: float = 0.0,
+) -> RankedPoses:
+    """Reference for ``rank_poses``: score every pose, then de-duplicate and take the top k."""
+    poses = np.asarray(poses, dtype=np.float64)
+    losses = np.asarray(losses, dtype=np.float64)
+    depths = np.asarray(penetrations(poses), dtype=np.float64)
+    scores = losses + penetration_cost(depths, allowance)
+    kept = distinct_in_order(poses, np.lexsort((np.arange(len(scores)), scores)), tol_translation, tol_rotation, top_k)
+    return RankedPoses(poses[kept], scores[kept], losses[kept], depths[kept], np.asarray(kept, dtype=np.int64), len(poses))
+
+
+def rank(
+    model: collision.PenetrationModel,
+    T_world_sensors: np.ndarray,
+    poses: np.ndarray,
+    losses: np.ndarray,
+    settings: RankSettings,
+    surface=None,
+    contacts: Contacts | None = None,
+    mesh=None,
+    *,
+    sensors: SensorSettings,
+) -> RankedPoses:
+    """The top-k distinct poses by loss + deepest sensor penetration (the paper's collision-aware ranking).
+
+    model: the object's PenetrationModel; poses (P, 4, 4) ``T_world_object``; losses (P,) m; contacts:
+    the sensors' contacts (default: their landmarks, ``contacts.sensors_to_landmark_contacts``); sensors:
+    how far ``T_world_sensors`` may be off (``SensorSettings``): that much penetration into a sensor costs
+    nothing (``penetration_cost``), and the refinement then corrects each sensor's pose too.
+
+    With either of these on, the best ``candidates`` distinct poses ranked as above are re-scored
+    (neither is in the paper):
+
+    - ``refine`` (``tactile6d.estimation.refine``): each pose is refined against ``surface`` (the object's
+      ``surface_sampling.SurfaceSamples``, required then) and scored ``d + refine_normal_weight * a + deepest
+      penetration``, d and a the refined pose's mean point-to-plane residual (m) and normal angle (rad)
+      (``refine.surface_losses``); ``losses`` of the result are then ``d + refine_normal_weight * a``.
+      With ``refine_patch_points`` > 0 and observed patches, that many points of each patch's
+      pressed gel join the fit (``Contacts.patch_points``), each sensor's together weighing
+      ``refine_patch_weight`` times its contact point.
+    - ``agreement_weight`` > 0 (``tactile6d.estimation.render_and_compare``): render-and-compare, when ``contacts`` hold
+      the observed patches (source ``patch``; landmark contacts, as the baseline's, have none, and are
+      ranked without it). Each pose's predicted contact on every gel is compared with the observed patch
+      and ``agreement_weight`` (m) times the agreement cost is added to the score. ``mesh`` (the object,
+      ``trimesh.Trimesh`` or ``render.MeshArrays``) is required then.
+    """
+    pieces = model.pieces
+    contacts = contacts if contacts is not None else sensors_to_landmark_contacts(T_world_sensors)
+    if settings.refine and surface is None:
+        raise InputError("refine needs the object's surface samples")
+    compare = settings.uses_agreement and contacts.observed
+    if compare and mesh is None:
+        raise InputError("agreement_weight > 0 needs the object's mesh to compare with the observed patches")
+    first = rank_poses(
+        poses,
+        losses,
+        partial(collision.poses_to_fcl_depths, model, T_world_sensor=T_world_sensors),
+        top_k=int(settings.candidates if settings.refine or compare else settings.top_k),
+        tol_translation=float(settings.dedup_translation),
+        tol_rotation=float(np.radians(settings.dedup_rotation)),
+        depth_bounds=(
+            partial(collision.poses_to_vertex_depth_bounds, pieces, T_world_sensor=T_world_sensors),
+            partial(collision.poses_to_box_depth_bounds, pieces, T_world_sensor=T_world_sensors),
+        ),
+        batch=int(settings.batch),
+        allowance=sensors.contact_sigma,
+    )
+    if not (settings.refine or compare):
+        return first
+    candidates, new_losses, depths, n_scored = first.poses, first.losses, first.penetrations, first.n_scored
+    scored_depths, correction_cost = depths, 0.0
+    seen = None  # (P, L, 4, 4) the object as each corrected sensor sees it, when the sensors are corrected
+    if settings.refine:
+        s, n = contacts.points, contacts.normals
+        w, offset = float(settings.refine_normal_weight), contacts.offsets(settings.refine_offset)
+        extra, owners = contacts.patch_points(T_world_sensors, int(settings.refine_patch_points))
+        # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
+        per_sensor = np.bincount(owners, minlength=len(s))[owners]
+        extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
+        if not sensors.exact:
+            sigma_contact, sigma_angle = sensors.correction_sigmas
+            candidates, seen = refinement.refine_poses_and_sensors(
+                surface, candidates, s, n, sigma_contact, sigma_angle, n_iterations=int(settings.refine_iterations),
+                normal_weight=w, offset=offset, patch_points=extra, patch_weights=extra_w, patch_owners=owners)
+            correction_cost = refinement.sensor_corrections_cost(candidates, seen, s, sigma_contact, sigma_angle)
+        else:
+            candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w,
+                                                 offset, patch_points=extra, patch_weights=extra_w)
+        distance, angle = refinement.surface_losses(surface, candidates if seen is None else seen, s, n, w, offset)
+        new_losses = distance + w * angle
+        # Reported: the penetrations through the sensor poses as given; scored: through the corrected ones.
+        depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
+        scored_depths = depths if seen is None else seen_penetrations(model, seen, T_world_sensors)
+        n_scored += len(candidates)
+    scores = new_losses + penetration_cost(scored_depths, sensors.contact_sigma)
+    scores = scores + settings.pose_correction_weight * correction_cost
+    if compare:
+        scores = scores + settings.agreement_weight * agreement_cost(
+            mesh, candidates if seen is None else seen, T_world_sensors, contacts, settings)
+    kept = distinct_in_order(
+        candidates, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
+        float(np.radians(settings.dedup_rotation)), int(settings.top_k),
+    )
+    return RankedPoses(candidates[kept], scores[kept], new_losses[kept], depths[kept], first.index[kept],
+                               n_scored)
+
+
+def seen_penetrations(model: collision.PenetrationModel, seen: np.ndarray, T_world_sensors: np.ndarray) -> np.ndarray:
+    """(P, L) m: each sensor's penetration by the object as that sensor sees it, seen (P, L, 4, 4)."""
+    return np.stack([collision.poses_to_penetrations(model, seen[:, i], T_world_sensors[i : i + 1])[:, 0]
+                     for i in range(len(T_world_sensors))], axis=1)
+
+
+def agreement_cost(mesh, poses: np.ndarray, T_world_sensors: np.ndarray, contacts: Contacts,
+                   settings: RankSettings) -> np.ndarray:
+    """Render-and-compare cost (P,) of poses (P, 4, 4) against the observed patches of ``contacts``:
+    ``render_and_compare.agreement_to_cost`` of the terms on the ray grid of ``agreement_step`` pixels, a
+    block being pressed when at least half of its pixels are in the observed mask. Poses (P, L, 4, 4):
+    the object as each sensor sees it (``refine.refine_poses_and_sensors``)."""
+    step = int(settings.agreement_step)
+    observed_mask = render_and_compare.image_to_grid(contacts.masks, step) >= 0.5
+    observed_depth = render_and_compare.image_to_grid(contacts.depths, step)
+    margin = float(settings.agreement_free_margin)
+    if poses.ndim == 4:
+        per_sensor = [render_and_compare.poses_to_agreement(mesh, poses[:, i], T_world_sensors[i : i + 1], observed_mask[i : i + 1],
+                                                   observed_depth[i : i + 1], step, margin)
+                      for i in range(len(T_world_sensors))]
+        terms = {key: np.concatenate([t[key] for t in per_sensor], axis=1) for key in per_sensor[0]}
+    else:
+        terms = render_and_compare.poses_to_agreement(mesh, poses, T_world_sensors, observed_mask, observed_depth, step, margin)
+    return render_and_compare.agreement_to_cost(
+        terms,
+        mask_weight=float(settings.agreement_mask_weight),
+        depth_weight=float(settings.agreement_depth_weight),
+        free_area_weight=float(settings.agreement_free_area_weight),
+        free_depth_weight=float(settings.agreement_free_depth_weight),
+    )
+
+
+def load_pieces(artifacts_dir: str | Path, name: str) -> collision.ConvexPieces:
+    """The object's convex collision pieces (stage prepare_object)."""
+    path = require(layout.object_file(artifacts_dir, name), "prepare_object", name)
+    return collision.vertices_to_pieces([v for v, _ in unpack_pieces(read_artifact(path, "object").data)])
+
+
+def load_mesh(artifacts_dir: str | Path, name: str) -> trimesh.Trimesh:
+    """The object's clean mesh (stage prepare_object), object frame: what render-and-compare ray-casts and
+    ``refine`` samples (``surface_sampling.sample_surface``)."""
+    path = require(layout.object_file(artifacts_dir, name), "prepare_object", name)
+    art = read_artifact(path, "object")
+    return trimesh.Trimesh(np.asarray(art["vertices"]), np.asarray(art["faces"]), process=False)

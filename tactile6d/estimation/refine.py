@@ -1,0 +1,310 @@
+"""Refining ranked pose hypotheses against the object's surface (not in the paper; ``rank.refine``).
+
+The optimiser fits each pose to database points, which lie millimetres apart, so even the right tuple
+leaves a few millimetres of error. Refinement moves a pose so that every sensor's contact point
+(``sensor.contact_points``) lies on the object's surface, ``offset`` outside it, and (weight
+``normal_weight``) every sensor's contact normal (its -x axis, ``sensor.contact_normals``) matches
+the surface normal there:
+
+    F(T) = sum_i (m_i . (q_i - c_i) - offset)^2 + normal_weight^2 sum_i || u_i - m_i ||^2
+
+with q_i = T^-1 s_i the contact point in the object frame, u_i = R^T n_i the contact normal there,
+and (c_i, m_i) the surface sample (point, outward face normal) matched to sensor i: among the ``k``
+samples nearest q_i, the one minimising ||q_i - c||^2 + normal_weight^2 ||u_i - m||^2 (so that a
+contact near an edge matches the face the sensor presses, not the one around the corner). Each
+iteration re-matches, then takes one damped, robustly weighted (Cauchy, 2 mm and 10 deg) Gauss-Newton step on SE(3), ``T <- T [exp(omega^), v]``
+(a weak prior anchoring the pose to its start keeps directions the contacts leave free in place;
+each step is clipped to 5 mm and 5 deg); all poses are refined together, vectorised. The surface is a dense,
+fixed, area-uniform sample with face normals (``surface_sampling.sample_surface``, 1 mm spacing).
+
+With the contact patches read from the images (``rank.refine_patch_points``), the points of each patch's
+pressed gel, which lie on the object's surface, join the fit as further point-to-plane rows (matched to
+their nearest sample, robustly weighted like the contacts); one sensor's patch points together weigh
+``rank.refine_patch_weight`` times its contact point. A patch spans millimetres of surface, so it also
+fixes how the surface is tilted and curved there, which one point cannot.
+
+Three contact points alone leave three degrees of freedom (each point-to-plane residual is one
+equation); the normal term adds two equations per sensor, which fixes the pose for L >= 2 and also
+tells apart hypotheses that fit the points equally well. ``surface_losses`` gives the two terms of
+a refined pose (mean absolute point-to-plane residual, m; mean normal angle, rad), from which the
+ranking scores refined poses (``estimator.rank``).
+
+Sensor poses from a robot's forward kinematics are off by millimetres and degrees, so the contacts read
+through them are too, each sensor by its own error, and no single object pose makes every sensor touch.
+``refine_poses_and_sensors`` (used unless ``sensors.pose_sigma_mm``/``_deg`` declare the poses exact) lets each sensor see the
+object through a small correction of its own, under a Gaussian prior of the sensor poses' expected error:
+what no object pose explains goes to the sensors, at a cost ``sensor_corrections_cost`` that the ranking
+adds to the score.
+
+Units: metres, radians. Poses are 4x4 float64 ``T_world_object``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tactile6d.core.geometry import make_pose, rotmat_to_rotvec, rotvec_to_rotmat, skew
+
+# A prior anchoring each pose to its start: each metre of accumulated translation counts as a
+# residual of _PRIOR_T metres, each radian of rotation as _PRIOR_R metres. Directions the contacts
+# leave free (contacts on two opposite faces and a third let the object slide along them) then stay
+# where the database fit put them instead of drifting.
+_PRIOR_T = 0.05
+_PRIOR_R = 0.001
+# Each step is clipped to this much translation (m) and rotation (rad): refinement corrects the few
+# millimetres and degrees of a database fit; it is not a global search.
+_MAX_STEP_T = 0.005
+_MAX_STEP_R = np.radians(5.0)
+# Scales of the robust weights: point-to-plane residual (m), normal difference (~ rad).
+_ROBUST_DISTANCE = 0.002
+_ROBUST_ANGLE = np.radians(10.0)
+# How far (m) a contact of the right pose, seen through exact sensor poses, is off the surface: the noise the
+# sensor corrections' prior is weighed against (a correction of one sigma costs as much as a residual this
+# large). 0.2, 0.5 and 1 mm were tried on the kinematic set (docs/real_sensors.md); 0.5 mm ranked best.
+FIT_NOISE = 0.0005
+
+
+def _match(surface, q: np.ndarray, u: np.ndarray, normal_weight: float, k: int):
+    """q, u (..., 3) object-frame contact points and normals -> matched sample points, normals (..., 3)."""
+    shape = q.shape
+    flat_q = q.reshape(-1, 3)
+    k = int(min(k, len(surface.points)))
+    _, idx = surface.tree.query(flat_q, k=k)
+    idx = np.asarray(idx).reshape(len(flat_q), k)
+    c, m = surface.points[idx], surface.normals[idx]  # (n, k, 3)
+    cost = np.sum((flat_q[:, None] - c) ** 2, axis=-1) + normal_weight**2 * np.sum((u.reshape(-1, 3)[:, None] - m) ** 2, axis=-1)
+    best = np.argmin(cost, axis=1)
+    rows = np.arange(len(flat_q))
+    return c[rows, best].reshape(shape), m[rows, best].reshape(shape)
+
+
+def _as_arrays(poses, sensor_points, sensor_normals) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """-> poses (P, 4, 4) as a float64 copy, sensor points (L, 3) and unit sensor normals (L, 3), float64."""
+    T = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
+    s = np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(sensor_normals, dtype=np.float64).reshape(-1, 3)
+    return T, s, n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _to_object(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """poses (P, 4, 4) ``T_world_object``, world points (M, 3) -> the points in each pose's object frame (P, M, 3)."""
+    R, t = poses[:, :3, :3], poses[:, :3, 3]
+    return np.einsum("pba,plb->pla", R, points[None] - t[:, None])
+
+
+def _local(poses: np.ndarray, sensor_points: np.ndarray, sensor_normals: np.ndarray):
+    """poses (P, 4, 4), or (P, L, 4, 4) the object as each sensor sees it (``refine_poses_and_sensors``)
+    -> contact points q and normals u in each pose's object frame, (P, L, 3)."""
+    if poses.ndim == 4:
+        R = poses[..., :3, :3]
+        return (np.einsum("plba,plb->pla", R, sensor_points[None] - poses[..., :3, 3]),
+                np.einsum("plba,lb->pla", R, sensor_normals))
+    return _to_object(poses, sensor_points), np.einsum("pba,lb->pla", poses[:, :3, :3], sensor_normals)
+
+
+def _point_to_plane(q: np.ndarray, c: np.ndarray, m: np.ndarray, offset, weight) -> tuple[np.ndarray, np.ndarray]:
+    """Normal equations (JtJ (P, 6, 6), Jtr (P, 6)) of point-to-plane rows for points q (P, n, 3) matched to
+    surface samples c with normals m: r = m.(q - c) - offset, dr/dv = -m, dr/domega = m x q; each row
+    weighted ``weight`` (a number or (n,)) times a robust (Cauchy) weight 1 / (1 + (r / 2 mm)^2), so that
+    a point matched to the wrong facet (a rounded edge of a scanned mesh) does not drag the pose (IRLS)."""
+    r = np.sum(m * (q - c), axis=-1) - offset  # (P, n)
+    J = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, n, 6)
+    rho = weight / (1.0 + (r / _ROBUST_DISTANCE) ** 2)
+    return np.einsum("pl,pla,plb->pab", rho, J, J), np.einsum("pl,pla,pl->pa", rho, J, r)
+
+
+def refine_poses(
+    surface,
+    poses: np.ndarray,
+    sensor_points: np.ndarray,
+    sensor_normals: np.ndarray,
+    n_iterations: int = 8,
+    normal_weight: float = 0.01,
+    offset: float = 0.0,
+    k: int = 32,
+    patch_points: np.ndarray | None = None,
+    patch_weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """Refine poses (P, 4, 4) so the sensors touch the surface (module docstring) -> (P, 4, 4).
+
+    surface: an object with ``points`` (S, 3), unit ``normals`` (S, 3) and a cKDTree ``tree`` over the
+    points, in the object frame (``surface_sampling.SurfaceSamples``); sensor_points (L, 3), sensor_normals
+    (L, 3) outward unit normals, world frame; normal_weight in m/rad (0: points only); offset (m) how
+    far outside the surface the contact points should sit (a number, or (L,) one per sensor); k samples
+    considered per match.
+
+    patch_points (M, 3), world frame, with patch_weights (M,): further points known to lie on the
+    surface (the pressed gel of the observed contact patches, ``Contacts.patch_points``), each fitted
+    point-to-plane to its nearest surface sample with residual weight ``patch_weights``.
+    """
+    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
+    n_poses, n_sensors = T.shape[0], s.shape[0]
+    if n_poses == 0:
+        return T
+    w = float(normal_weight)
+    prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
+    moved = np.zeros((n_poses, 6))  # accumulated steps (local frame, first order)
+    has_patch = patch_points is not None and len(patch_points) > 0
+    if has_patch:
+        extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
+        extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
+    for _ in range(int(n_iterations)):
+        q, u = _local(T, s, n)
+        c, m = _match(surface, q, u, w, k)
+        JtJ, Jtr = _point_to_plane(q, c, m, offset, 1.0)
+        if has_patch:
+            qp = _to_object(T, extra)  # (P, M, 3); each matched to its nearest sample
+            _, idx = surface.tree.query(qp.reshape(-1, 3))
+            patch_JtJ, patch_Jtr = _point_to_plane(qp, surface.points[idx].reshape(qp.shape),
+                                                   surface.normals[idx].reshape(qp.shape), 0.0, extra_w)
+            JtJ += patch_JtJ
+            Jtr += patch_Jtr
+        if w > 0:
+            # Normal rows: r = w (u - m), dr/domega = w [u]x (u' = u + u x omega), dr/dv = 0.
+            r_n = w * (u - m)  # (P, L, 3)
+            J_n = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
+            rho_n = 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+            JtJ[:, 3:, 3:] += np.einsum("pl,plia,plib->pab", rho_n, J_n, J_n)
+            Jtr[:, 3:] += np.einsum("pl,plia,pli->pa", rho_n, J_n, r_n)
+        step = -np.linalg.solve(JtJ + prior, (Jtr + moved @ prior)[..., None])[..., 0]
+        for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
+            norm = np.linalg.norm(step[:, part], axis=1, keepdims=True)
+            step[:, part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+        moved += step
+        T = T @ make_pose(rotvec_to_rotmat(step[:, 3:]), step[:, :3])
+    return T
+
+
+def surface_losses(
+    surface,
+    poses: np.ndarray,
+    sensor_points: np.ndarray,
+    sensor_normals: np.ndarray,
+    normal_weight: float = 0.01,
+    offset: float = 0.0,
+    k: int = 32,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How well each pose (P, 4, 4) makes the sensors touch the surface -> (distance (P,) m, angle (P,) rad):
+    the mean over sensors of |point-to-plane residual| and of the angle between the contact normal and
+    the matched surface normal (matching as in ``refine_poses``). Poses (P, L, 4, 4): the object as each
+    sensor sees it (``refine_poses_and_sensors``)."""
+    poses = np.asarray(poses, dtype=np.float64)
+    T, s, n = _as_arrays(poses if poses.ndim == 3 else poses[:, 0], sensor_points, sensor_normals)
+    T = T if poses.ndim == 3 else poses
+    q, u = _local(T, s, n)
+    c, m = _match(surface, q, u, float(normal_weight), k)
+    distance = np.abs(np.sum(m * (q - c), axis=-1) - offset).mean(axis=1)
+    angle = np.arccos(np.clip(np.sum(u * m, axis=-1), -1.0, 1.0)).mean(axis=1)
+    return distance, angle
+
+
+def refine_poses_and_sensors(
+    surface,
+    poses: np.ndarray,
+    sensor_points: np.ndarray,
+    sensor_normals: np.ndarray,
+    sigma_contact: float,
+    sigma_angle: float,
+    fit_noise: float = FIT_NOISE,
+    n_iterations: int = 8,
+    normal_weight: float = 0.01,
+    offset: float = 0.0,
+    k: int = 32,
+    patch_points: np.ndarray | None = None,
+    patch_weights: np.ndarray | None = None,
+    patch_owners: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``refine_poses`` for sensor poses that are off (forward kinematics): each sensor's small pose error
+    is estimated beside the object's pose -> (poses (P, 4, 4), seen (P, L, 4, 4)).
+
+    Sensor i sees the object at ``seen[p, i] = poses[p] exp(zeta_pi)`` instead of ``poses[p]``: everything
+    read through sensor i (its contact point and normal, its patch points) is fitted against the object at
+    ``seen[p, i]``. Each correction zeta_pi = (v, omega) (object frame) pays a Gaussian prior: the shift of
+    the contact point, ``v + omega x q_i``, has standard deviation ``sigma_contact`` (m) per axis and the
+    turn ``omega`` ``sigma_angle`` (rad), both against the residuals' own noise ``fit_noise`` (m), so that a
+    correction of one sigma costs as much as a residual of ``fit_noise``. Contacts that no single object
+    pose explains are then explained by small sensor errors instead of by moving the object, which the
+    contacts common to every sensor still do. Other arguments as ``refine_poses``; patch_owners (M,) the
+    sensor each patch point belongs to. With sigmas of 0 use ``refine_poses``.
+    """
+    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
+    n_poses, n_sensors = T.shape[0], s.shape[0]
+    seen = np.repeat(T[:, None], n_sensors, axis=1)
+    if n_poses == 0:
+        return T, seen
+    w = float(normal_weight)
+    dim = 6 + 6 * n_sensors
+    prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
+    moved = np.zeros((n_poses, 6))
+    zeta = np.zeros((n_poses, n_sensors, 6))
+    has_patch = patch_points is not None and len(patch_points) > 0
+    if has_patch:
+        extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
+        extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
+        owners = np.eye(n_sensors)[np.asarray(patch_owners, dtype=int).reshape(-1)]  # (M, L) one-hot
+    a_scale, b_scale = fit_noise / sigma_contact, fit_noise / sigma_angle
+    for _ in range(int(n_iterations)):
+        R_seen = seen[..., :3, :3]
+        q, u = _local(seen, s, n)  # (P, L, 3), each through its own sensor
+        c, m = _match(surface, q, u, w, k)
+        r = np.sum(m * (q - c), axis=-1) - offset  # (P, L)
+        J = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, L, 6)
+        rho = 1.0 / (1.0 + (r / _ROBUST_DISTANCE) ** 2)
+        B = np.einsum("pl,pla,plb->plab", rho, J, J)  # each sensor's rows' normal equations (P, L, 6, 6)
+        g = np.einsum("pl,pla,pl->pla", rho, J, r)
+        if has_patch:
+            R_own = np.einsum("ml,plab->pmab", owners, R_seen)
+            t_own = np.einsum("ml,pla->pma", owners, seen[..., :3, 3])
+            qp = np.einsum("pmba,pmb->pma", R_own, extra[None] - t_own)
+            _, idx = surface.tree.query(qp.reshape(-1, 3))
+            cp, mp = surface.points[idx].reshape(qp.shape), surface.normals[idx].reshape(qp.shape)
+            rp = np.sum(mp * (qp - cp), axis=-1)
+            Jp = np.concatenate([-mp, np.cross(mp, qp)], axis=-1)
+            rhop = extra_w / (1.0 + (rp / _ROBUST_DISTANCE) ** 2)
+            B += np.einsum("pm,ml,pma,pmb->plab", rhop, owners, Jp, Jp)
+            g += np.einsum("pm,ml,pma,pm->pla", rhop, owners, Jp, rp)
+        if w > 0:
+            r_n = w * (u - m)
+            J_n = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
+            rho_n = 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+            B[..., 3:, 3:] += np.einsum("pl,plia,plib->plab", rho_n, J_n, J_n)
+            g[..., 3:] += np.einsum("pl,plia,pli->pla", rho_n, J_n, r_n)
+        # The sensors' priors: G zeta = (a_scale (v - [q]x omega), b_scale omega).
+        G = np.zeros((n_poses, n_sensors, 6, 6))
+        G[..., :3, :3] = a_scale * np.eye(3)
+        G[..., :3, 3:] = -a_scale * skew(q.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
+        G[..., 3:, 3:] = b_scale * np.eye(3)
+        sensor_prior = np.einsum("plia,plib->plab", G, G)
+        H = np.zeros((n_poses, dim, dim))
+        rhs = np.zeros((n_poses, dim))
+        H[:, :6, :6] = B.sum(axis=1) + prior
+        rhs[:, :6] = g.sum(axis=1) + moved @ prior
+        for i in range(n_sensors):
+            block = slice(6 + 6 * i, 12 + 6 * i)
+            H[:, :6, block] = B[:, i]
+            H[:, block, :6] = B[:, i]
+            H[:, block, block] = B[:, i] + sensor_prior[:, i]
+            rhs[:, block] = g[:, i] + np.einsum("pab,pb->pa", sensor_prior[:, i], zeta[:, i])
+        step = -np.linalg.solve(H, rhs[..., None])[..., 0].reshape(n_poses, 1 + n_sensors, 6)
+        for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
+            norm = np.linalg.norm(step[..., part], axis=-1, keepdims=True)
+            step[..., part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+        moved += step[:, 0]
+        zeta += step[:, 1:]
+        T = T @ make_pose(rotvec_to_rotmat(step[:, 0, 3:]), step[:, 0, :3])
+        seen = T[:, None] @ make_pose(rotvec_to_rotmat(zeta[..., 3:].reshape(-1, 3)),
+                                      zeta[..., :3].reshape(-1, 3)).reshape(n_poses, n_sensors, 4, 4)
+    return T, seen
+
+
+def sensor_corrections_cost(poses: np.ndarray, seen: np.ndarray, sensor_points: np.ndarray, sigma_contact: float,
+                            sigma_angle: float) -> np.ndarray:
+    """How unlikely the sensor corrections of ``refine_poses_and_sensors`` are: poses (P, 4, 4), seen (P, L, 4, 4),
+    sensor_points (L, 3) world -> (P,) the mean over sensors of the squared Mahalanobis norm of the correction
+    (its shift of the contact point over ``sigma_contact`` m, its turn over ``sigma_angle`` rad); 0 for none."""
+    correction = np.linalg.inv(np.asarray(poses, dtype=np.float64))[:, None] @ seen  # poses^-1 seen = exp(zeta)
+    omega = rotmat_to_rotvec(correction[..., :3, :3].reshape(-1, 3, 3)).reshape(correction.shape[:2] + (3,))
+    q, _ = _local(np.asarray(seen, dtype=np.float64), np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3),
+                  np.zeros_like(np.asarray(sensor_points, dtype=np.float64)).reshape(-1, 3))
+    shift = correction[..., :3, 3] + np.cross(omega, q)
+    return (np.sum(shift**2, axis=-1) / sigma_contact**2 + np.sum(omega**2, axis=-1) / sigma_angle**2).mean(axis=1)

@@ -1,0 +1,105 @@
+"""Where each sensor touches the object: one contact point and outward surface normal per sensor, in the
+world frame, and what its image shows of the contact.
+
+Two sources (config ``select.contacts``):
+
+- ``landmark``, the paper's assumption: the object touches every sensor at the gel landmark
+  ``sensor.CONTACT_POINT``, with its surface normal along the sensor's -x axis. The landmark sits a
+  fraction of a millimetre outside the object's surface (how far depends on the press depth).
+- ``patch``: each image's contact patch (``tactile6d.patch.image_to_patch``): the object's surface point
+  where it presses deepest and its normal there, wherever on the gel that is and however the sensor is
+  tilted. The points lie on the surface. A sensor whose image shows no contact keeps its landmark
+  (``from_patch`` says which), so that an estimate still has one point per sensor.
+
+The patch source also keeps each sensor's observed contact mask and press depth on the image, which
+render-and-compare ranking checks hypotheses against (``tactile6d.estimation.render_and_compare``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactile6d.core import sensor
+from tactile6d.core.errors import InputError
+from tactile6d.perception.contact_patch import ContactPatch, depth_to_points
+
+
+@dataclass(frozen=True)
+class Contacts:
+    """The sensors' contacts for one estimate (L sensors).
+
+    points (L, 3) m and normals (L, 3) unit, world frame; from_patch (L,) bool: the sensor's point was
+    read from its image and lies on the object's surface, rather than being its landmark, just outside
+    the surface (all False for the landmark source; False for a patch source's sensor whose image shows
+    no contact); masks (L, 320, 240) bool and depths (L, 320, 240) float32 m: the
+    observed contact patches (None for landmarks).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    from_patch: np.ndarray
+    masks: np.ndarray | None = None
+    depths: np.ndarray | None = None
+
+    @property
+    def observed(self) -> bool:
+        """Whether the observed patches are known (render-and-compare can use them)."""
+        return self.masks is not None
+
+    def offsets(self, landmark_offset: float) -> np.ndarray:
+        """(L,) m: how far outside the object's surface each point should sit: 0 for a point read from its
+        image, ``landmark_offset`` for a landmark (its distance depends on the press, a config value)."""
+        return np.where(self.from_patch, 0.0, float(landmark_offset))
+
+    def patch_points(self, T_world_sensors: np.ndarray, max_per_sensor: int) -> tuple[np.ndarray, np.ndarray]:
+        """Points of the observed patches' pressed gel, which lie on the object's surface, world frame.
+
+        T_world_sensors (L, 4, 4). Each sensor read from its image gives up to ``max_per_sensor`` of its
+        mask's pixels, evenly spread over the mask, lifted to the gel surface at their press depth
+        (``contact_patch.depth_to_points``). -> points (M, 3) m and the sensor of each (M,) int.
+        """
+        if not self.observed or max_per_sensor < 1:
+            return np.zeros((0, 3)), np.zeros(0, dtype=int)
+        T = np.asarray(T_world_sensors, dtype=np.float64)
+        points, owners = [], []
+        for i in np.flatnonzero(self.from_patch):
+            rows, cols = np.nonzero(self.masks[i])
+            if len(rows) == 0:
+                continue
+            pick = np.unique(np.linspace(0, len(rows) - 1, min(max_per_sensor, len(rows))).round().astype(int))
+            local = depth_to_points(self.depths[i])[rows[pick], cols[pick]]
+            points.append(local @ T[i, :3, :3].T + T[i, :3, 3])
+            owners.append(np.full(len(pick), i))
+        if not points:
+            return np.zeros((0, 3)), np.zeros(0, dtype=int)
+        return np.concatenate(points), np.concatenate(owners)
+
+
+def sensors_to_landmark_contacts(T_world_sensors: np.ndarray) -> Contacts:
+    """The paper's contacts: (L, 4, 4) sensor poses -> each sensor's landmark and -x axis."""
+    T = np.asarray(T_world_sensors, dtype=np.float64)
+    return Contacts(sensor.contact_points(T), sensor.contact_normals(T), np.zeros(T.shape[0], dtype=bool))
+
+
+def patches_to_contacts(patches: Sequence[ContactPatch], T_world_sensors: np.ndarray) -> Contacts:
+    """Contacts read from the sensors' images: L patches (sensor frames) and (L, 4, 4) sensor poses.
+
+    A patch without contact keeps the sensor's landmark and -x axis (``from_patch`` is False there).
+    """
+    T = np.asarray(T_world_sensors, dtype=np.float64)
+    if len(patches) != T.shape[0]:
+        raise InputError(f"{len(patches)} contact patches for {T.shape[0]} sensors")
+    fallback = sensors_to_landmark_contacts(T)
+    points, normals = fallback.points.copy(), fallback.normals.copy()
+    from_patch = np.array([p.contact for p in patches], dtype=bool)
+    for i, p in enumerate(patches):
+        if p.contact:
+            R, t = T[i, :3, :3], T[i, :3, 3]
+            points[i] = R @ p.point + t
+            normals[i] = R @ p.normal
+    masks = np.stack([p.mask for p in patches]).astype(bool)
+    depths = np.stack([p.depth for p in patches]).astype(np.float32)
+    return Contacts(points, normals, from_patch, masks, depths)

@@ -1,0 +1,200 @@
+"""Checks of what a caller hands the estimator: sensor poses, tactile images and the sensors'
+no-contact images (backgrounds).
+
+Each check returns the input as the array the steps take, or raises InputError naming the first
+problem, so that a robot's mistake is reported before any work is done. Beyond shapes and types, inputs
+that are plausibly wrong are refused too: a grey image, an image whose red and blue look swapped against
+its no-contact image (OpenCV's BGR order), sensors whose bodies overlap; one sensor only is accepted with
+a warning. They run once per estimate and cost well under a millisecond per sensor.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from tactile6d.core.errors import InputError
+from tactile6d.core.geometry import is_rotation
+from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap
+from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE
+
+
+def check_sensor_poses(T_world_sensors) -> np.ndarray:
+    """Sensor poses -> (L, 4, 4) float64, L >= 1; InputError naming the first bad one."""
+    T = np.asarray(T_world_sensors, dtype=np.float64)
+    if T.ndim == 2 and T.shape == (4, 4):
+        T = T[None]
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or T.shape[0] < 1:
+        raise InputError(f"sensor poses must be (L, 4, 4) with L >= 1, got shape {T.shape}")
+    for i, pose in enumerate(T):
+        if not np.all(np.isfinite(pose)):
+            raise InputError(f"sensor pose {i} has NaN or infinite entries")
+        if not is_rotation(pose[:3, :3], atol=1e-5):
+            raise InputError(f"sensor pose {i}: the upper-left 3x3 block is not a rotation matrix")
+        if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
+            raise InputError(f"sensor pose {i}: the last row must be 0 0 0 1, got {pose[3].tolist()}")
+    return T
+
+
+def check_images(images, n_sensors: int) -> np.ndarray:
+    """L tactile images (an array or a sequence of arrays) -> (L, 320, 240, 3) uint8, one per sensor."""
+    if images is None:
+        raise InputError("method 'ours' needs one tactile image per sensor, got none")
+    if isinstance(images, np.ndarray) and images.ndim == 4:
+        images = list(images)
+    elif isinstance(images, np.ndarray):
+        raise InputError(f"tactile images must be (L, 320, 240, 3), got shape {images.shape}")
+    if len(images) != n_sensors:
+        raise InputError(f"{len(images)} tactile images for {n_sensors} sensor poses")
+    for i, image in enumerate(images):
+        image = np.asarray(image)
+        if image.shape != TACTILE_IMAGE_SHAPE:
+            raise InputError(f"image {i} has shape {image.shape}, a DIGIT image is (320, 240, 3): "
+                             "320 rows x 240 columns x RGB")
+        if image.dtype != np.uint8:
+            raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8")
+    return np.stack([np.asarray(image) for image in images])
+
+
+# --- no-contact images, one for all sensors or one per sensor -------------------------------------------
+
+
+def check_backgrounds(backgrounds) -> np.ndarray:
+    """The sensors' no-contact images: (320, 240, 3) uint8 RGB for every sensor, or (L, 320, 240, 3) (an
+    array or a sequence of arrays) one per sensor, in sensor order -> that array, checked: InputError
+    naming the background when it has the wrong shape or dtype or is grey."""
+    if isinstance(backgrounds, (list, tuple)):
+        if len(backgrounds) == 0:
+            raise InputError("no background image given: pass one for all sensors or one per sensor")
+        for i, background in enumerate(backgrounds):
+            _check_background(np.asarray(background), f"background {i}")
+        return np.stack([np.asarray(b) for b in backgrounds])
+    backgrounds = np.asarray(backgrounds)
+    if backgrounds.ndim == 4:
+        if backgrounds.shape[0] == 0:
+            raise InputError("no background image given: pass one for all sensors or one per sensor")
+        for i, background in enumerate(backgrounds):
+            _check_background(background, f"background {i}")
+    else:
+        _check_background(backgrounds, "background")
+    return backgrounds
+
+
+def _check_background(background: np.ndarray, name: str) -> None:
+    if background.shape != TACTILE_IMAGE_SHAPE:
+        raise InputError(f"{name} has shape {background.shape}, a DIGIT no-contact image is (320, 240, 3): "
+                         "320 rows x 240 columns x RGB (or give (L, 320, 240, 3), one per sensor)")
+    if background.dtype != np.uint8:
+        raise InputError(f"{name} has dtype {background.dtype}, no-contact images must be uint8 like the "
+                         "tactile images")
+    if is_grey(background):
+        raise InputError(f"{name} is grey (its three channels are equal everywhere), but a DIGIT image is "
+                         "RGB colour: read it with tactile6d.io.read_tactile_image")
+
+
+def backgrounds_per_sensor(backgrounds: np.ndarray, n_sensors: int) -> np.ndarray:
+    """Checked backgrounds (``check_backgrounds``) -> (L, 320, 240, 3), one per sensor: a single one is
+    repeated (a read-only view, no copy); InputError when their count is not the sensors'."""
+    if backgrounds.ndim == 3:
+        return np.broadcast_to(backgrounds, (n_sensors, *backgrounds.shape))
+    if backgrounds.shape[0] != n_sensors:
+        raise InputError(f"{backgrounds.shape[0]} background images for {n_sensors} sensors: give one for all "
+                         "sensors or one per sensor, in sensor order")
+    return backgrounds
+
+
+# --- images that are plausibly read wrong ---------------------------------------------------------------
+
+# An image passed in OpenCV's BGR order has its red and blue swapped. Against its own no-contact image the
+# difference red - blue tells: as given it stays near the background's, swapped it is near minus that.
+# Compared on a grid of every BGR_CHECK_STEP-th pixel, at the BGR_QUANTILE of the pixels, so that the
+# pressed part of the gel (where the imprint changes red - blue) has little say. Measured against the
+# default background: the paper's 120 images are within 5 grey levels that way and 5.4 or more times
+# further swapped, and every one swapped is flagged (tests/test_inputs.py). Of 320 renderings (a box, a
+# sphere, a cylinder, a cut box pressed 0.5-3 mm at random points and rolls) none is flagged, the closest
+# matching 0.62 times as well swapped (flagged: below 1 / BGR_RATIO), and 284 are flagged swapped: a press
+# that covers most of the gel leaves little to compare, and passes either way.
+BGR_CHECK_STEP = 4
+BGR_QUANTILE = 0.25
+BGR_RATIO = 3.0  # swapped, the image must match at least this many times better ...
+BGR_MIN_GAIN = 8.0  # ... and by this many grey levels, so that noise never decides
+
+
+def is_grey(image: np.ndarray) -> bool:
+    """Whether a (H, W, 3) image's three channels are equal everywhere (a grey image stacked to RGB)."""
+    # A colour image shows it on a coarse grid already: the whole image is compared only when that is grey.
+    for part in (image[::BGR_CHECK_STEP, ::BGR_CHECK_STEP], image):
+        if not (np.array_equal(part[..., 0], part[..., 1]) and np.array_equal(part[..., 1], part[..., 2])):
+            return False
+    return True
+
+
+def background_mismatch(image: np.ndarray, background: np.ndarray) -> tuple[float, float]:
+    """How far a (320, 240, 3) uint8 RGB image's red - blue is from its no-contact image's (320, 240, 3), as
+    given and with red and blue swapped: the ``BGR_QUANTILE`` over a pixel grid of the absolute
+    difference (grey levels)."""
+    grid = image[::BGR_CHECK_STEP, ::BGR_CHECK_STEP].astype(np.int16)
+    reference = background[::BGR_CHECK_STEP, ::BGR_CHECK_STEP].astype(np.int16)
+    red_minus_blue = grid[..., 0] - grid[..., 2]
+    expected = reference[..., 0] - reference[..., 2]
+    as_given = float(np.quantile(np.abs(red_minus_blue - expected), BGR_QUANTILE))
+    swapped = float(np.quantile(np.abs(-red_minus_blue - expected), BGR_QUANTILE))
+    return as_given, swapped
+
+
+def looks_like_bgr(image: np.ndarray, background: np.ndarray) -> bool:
+    """Whether an RGB image matches its no-contact image far better with R and B swapped (``BGR_RATIO``,
+    ``BGR_MIN_GAIN``): the image was most likely passed in OpenCV's BGR order."""
+    as_given, swapped = background_mismatch(image, background)
+    return as_given > BGR_RATIO * swapped and as_given - swapped > BGR_MIN_GAIN
+
+
+def check_images_against_backgrounds(images: np.ndarray, backgrounds: np.ndarray) -> None:
+    """InputError naming the first image (L, 320, 240, 3) uint8 that is grey or looks BGR against its own
+    no-contact image (backgrounds (L, 320, 240, 3), ``backgrounds_per_sensor``)."""
+    for i, (image, background) in enumerate(zip(images, backgrounds)):
+        if is_grey(image):
+            raise InputError(f"image {i} is grey (its three channels are equal everywhere), but a DIGIT image "
+                             "is RGB colour: read it with tactile6d.io.read_tactile_image")
+        if looks_like_bgr(image, background):
+            as_given, swapped = background_mismatch(image, background)
+            raise InputError(f"image {i} looks like BGR: its red - blue differs from its no-contact image's by "
+                             f"{as_given:.0f} grey levels as given and by {swapped:.0f} swapped; pass RGB "
+                             "images: use read_tactile_image or convert with cv2.cvtColor(image, "
+                             "cv2.COLOR_BGR2RGB)")
+
+
+# --- sensor layouts that cannot be right, or say little ----------------------------------------------
+
+# Sensors whose bodies overlap by more than this (m) on every axis are an error; less is taken for a
+# calibration error of sensors mounted side by side.
+BODY_OVERLAP_MARGIN = 0.5e-3
+
+
+class UnderdeterminedPoseWarning(UserWarning):
+    """One sensor only: the pose is under-determined (see ``warn_if_underdetermined``)."""
+
+
+def check_bodies_apart(T_world_sensors: np.ndarray, margin: float = BODY_OVERLAP_MARGIN) -> None:
+    """InputError naming the first two sensors (L, 4, 4) whose DIGIT bodies (``sensor.bodies_overlap``, each
+    shrunk by ``margin``) overlap: two units cannot be in one place."""
+    T = np.asarray(T_world_sensors, dtype=np.float64)
+    centres = T[:, :3, 3] + T[:, :3, :3] @ BOX_CENTER
+    # Boxes whose bounding spheres are apart need no 15-axis test.
+    reach = 2.0 * float(np.linalg.norm(BOX_HALF_EXTENTS))
+    for j in range(len(T)):
+        for i in range(j):
+            if np.linalg.norm(centres[j] - centres[i]) < reach and bodies_overlap(T[i], T[j], margin):
+                raise InputError(f"sensors {i} and {j} overlap: their DIGIT bodies intersect, so their poses "
+                                 "cannot both be right (check the sensor order and the hand's calibration)")
+
+
+def warn_if_underdetermined(n_sensors: int, stacklevel: int = 4) -> None:
+    """A warning (``UnderdeterminedPoseWarning``) for one sensor: a single contact does not observe the
+    rotation about its normal nor a slide along the surface, so the estimate is one of many that fit.
+    stacklevel: as ``warnings.warn``'s; 4 names the line that called ``Estimator.estimate``."""
+    if n_sensors == 1:
+        warnings.warn("one sensor only: the pose is under-determined (the rotation about the contact normal "
+                      "and sliding along the surface are not observed)", UnderdeterminedPoseWarning,
+                      stacklevel=stacklevel)

@@ -1,0 +1,262 @@
+"""Light that drifts: a tactile image's colours brought back to those of its sensor's no-contact image.
+
+The estimator reads contact as ``image - no_contact`` (autoencoder input, contact patch, render-and-compare),
+so a global change of light is read as contact everywhere: a DIGIT's LEDs dim and warm with temperature
+and age, and exposure changes. Such a change is modelled per colour channel ``c`` as a gain and a gamma
+of the 8-bit value (what the no-contact image would look like under today's light):
+
+    recorded_c = 255 * gain_c * (expected_c / 255) ** gamma_c
+
+It is fitted, inverted, as ``expected_c = 255 * exp(a_c) * (recorded_c / 255) ** b_c`` (a straight line in
+log values) on pairs of values at the same place in the image and in its no-contact image, both averaged
+over blocks of ``BLOCK`` x ``BLOCK`` pixels first (the camera noise, 7 grey levels in the simulator, would
+otherwise bias the fitted exponent towards 0: regression dilution). Where the gel is not touched the pairs
+lie on that line up to noise; where it is, they scatter off it. A press often covers most of the gel, so
+the line is not what most pairs follow but the tightest line that some do: a search over the exponent
+(``EXPONENTS``) for the offset that the most pairs fit within ``TOLERANCE`` (a mode search, deterministic),
+then iteratively reweighted least squares (Tukey's biweight) on the pairs near it, with the scale of the
+residuals taken from those pairs only. Where a channel's no-contact image has too little spread to tell a
+gamma from a gain (a flat background), the exponent stays near 1 (ties go to the exponent nearest 1, and a
+weak prior in the refinement). The fit is applied as one lookup table per channel.
+
+``LightFit.trustworthy`` says whether the fit can be trusted: a drift far beyond what a unit's LEDs do
+(``MAX_DRIFT``) is not, and is more often a press that covers nearly the whole gel, whose colours the
+fit took for the light; such a fit is reported (``LightWarning``) and not applied. An image of another
+unit than its no-contact image's is not told apart by the fit (its few matching blocks fit a line as
+well as a heavy press's untouched rim does).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+BLOCK = 4  # pixels averaged per side before the fit
+SEARCH_STRIDE = 2  # the mode search uses every 2nd block in each direction (a quarter of them)
+EXPONENTS = np.round(np.arange(0.60, 1.6001, 0.04), 2)  # exponents b the mode search tries (the refinement is continuous)
+TOLERANCE = 0.02  # log units (2 grey levels at 100): a pair fits a line within this in the mode search
+BORDER_WEIGHT = (0.1, 1.0)  # a block's weight in the mode search: 0.1 at the centre, 1.1 mid-edge, 2.1 in a corner
+TIE = 0.98  # exponents whose best count is within 2 % of the best are ties, won by the one nearest 1
+ITERATIONS = 10  # reweighting rounds
+TUKEY_C = 4.685  # Tukey's biweight constant, in robust standard deviations (95 % efficiency)
+MIN_SCALE = 0.005  # floor of the robust standard deviation of log residuals (half a grey level at 100)
+PRIOR_WEIGHT = 1e-3  # per block, the weight of (b - 1)^2 beside the squared log residuals
+VALID = (8.0, 247.0)  # block means outside this are clipped or nearly so, and not used
+
+MIN_CHANGE = 2.5  # grey levels: a fit that moves an image by less, on average, is not applied (align_images)
+
+# Beyond these the light is not what a unit's LEDs drift to: its reading cannot be trusted.
+MAX_DRIFT = {"gain": (0.67, 1.5), "gamma": (0.67, 1.5)}
+
+
+@dataclass(frozen=True)
+class LightFit:
+    """How one image's light differs from its no-contact image's.
+
+    log_gain, exponent: (3,) ``a_c``, ``b_c`` of the module docstring (the image -> no-contact mapping);
+    residual: (3,) robust standard deviation, grey levels, of the no-contact image about the fitted
+    mapping on the blocks that follow it; outliers: share of the blocks that do not (contact, or a
+    no-contact image of another unit); applied: whether the image was changed (``align_images``).
+    """
+
+    log_gain: np.ndarray
+    exponent: np.ndarray
+    residual: np.ndarray
+    outliers: float
+    applied: bool = True
+
+    @property
+    def gain(self) -> np.ndarray:
+        """(3,) the drift's gain per channel (recorded = 255 * gain * (expected / 255) ** gamma)."""
+        return np.exp(-self.log_gain / self.exponent)
+
+    @property
+    def gamma(self) -> np.ndarray:
+        """(3,) the drift's gamma per channel."""
+        return 1.0 / self.exponent
+
+    @property
+    def trustworthy(self) -> bool:
+        """Whether the drift is one a unit's light can have (``MAX_DRIFT``)."""
+        return not self.problems()
+
+    def problems(self) -> list[str]:
+        """What makes the fit untrustworthy, in words (empty when nothing does)."""
+        out = []
+        for name, values in (("gain", self.gain), ("gamma", self.gamma)):
+            low, high = MAX_DRIFT[name]
+            if np.any(values < low) or np.any(values > high):
+                out.append(f"its light would differ by a {name} of {_rgb(values)} (a unit drifts within "
+                           f"{low}-{high}): either the light changed that much, or the press covers so much "
+                           "of the gel that it cannot be told from the light")
+        return out
+
+    def to_dict(self) -> dict:
+        """Plain numbers for JSON output."""
+        return {"gain": self.gain.round(4).tolist(), "gamma": self.gamma.round(4).tolist(),
+                "residual": self.residual.round(2).tolist(), "outliers": round(float(self.outliers), 4),
+                "applied": self.applied}
+
+
+def _rgb(values: np.ndarray) -> str:
+    return "/".join(f"{v:.2f}" for v in values)
+
+
+IDENTITY = LightFit(np.zeros(3), np.ones(3), np.zeros(3), 0.0)
+
+
+def block_means(image: np.ndarray, block: int = BLOCK) -> np.ndarray:
+    """(H, W, C) -> (H // block, W // block, C) float64 means of block x block pixels (the remainder cut)."""
+    h, w = image.shape[0] // block * block, image.shape[1] // block * block
+    x = np.asarray(image[:h, :w], dtype=np.float64)
+    return x.reshape(h // block, block, w // block, block, -1).mean(axis=(1, 3))
+
+
+def fit_channel(recorded: np.ndarray, expected: np.ndarray, search: np.ndarray | None = None,
+                weights: np.ndarray | None = None) -> tuple[float, float, float, np.ndarray]:
+    """Robust fit of ``log expected = a + b log recorded`` on paired values (n,) in grey levels.
+
+    search: (n,) bool, the pairs the mode search uses (all when None; the refinement uses all); weights:
+    (n,) how much each pair counts in the mode search (1 when None). Returns ``(a, b, robust standard
+    deviation of the log residuals of the pairs that follow the line, those pairs (n,) bool)``; (0, 1, 0,
+    none) when fewer than 10 pairs are usable.
+    """
+    usable = (recorded > VALID[0]) & (recorded < VALID[1]) & (expected > VALID[0]) & (expected < VALID[1])
+    searched = usable if search is None else usable & search
+    if np.count_nonzero(searched) < 10:
+        return 0.0, 1.0, 0.0, np.zeros_like(usable)
+    x, y = np.log(recorded[usable] / 255.0), np.log(expected[usable] / 255.0)
+    a, b = mode_line(np.log(recorded[searched] / 255.0), np.log(expected[searched] / 255.0),
+                     None if weights is None else weights[searched])
+    # A fixed scale: one estimated from the residuals would grow with every contact pair let in.
+    scale = TOLERANCE / 2.0
+    for _ in range(ITERATIONS):
+        u = (y - (a + b * x)) / (TUKEY_C * scale)
+        w = np.where(np.abs(u) < 1.0, (1.0 - u**2) ** 2, 0.0)
+        a, b = _weighted_line(x, y, w, PRIOR_WEIGHT * np.count_nonzero(w))
+    r = y - (a + b * x)
+    near = np.abs(r) < TUKEY_C * scale
+    spread = max(1.4826 * float(np.median(np.abs(r[near]))), MIN_SCALE) if near.any() else 0.0
+    inliers = np.zeros_like(usable)
+    inliers[usable] = near
+    return a, b, spread, inliers
+
+
+def mode_line(x: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> tuple[float, float]:
+    """The line ``y = a + b x`` (b in ``EXPONENTS``) that the most of the points (n,) fit within
+    ``TOLERANCE`` (counted with ``weights`` (n,) when given); a is the middle of the densest window of
+    y - b x. Ties (``TIE``) go to b nearest 1. All exponents at once: each row of residuals sorted, rows
+    kept apart in one flat array by offsets larger than any residual's range."""
+    w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=np.float64)
+    residuals = y[None, :] - EXPONENTS[:, None] * x[None, :]  # (B, n)
+    order = np.argsort(residuals, axis=1)
+    r = np.take_along_axis(residuals, order, axis=1)
+    span = float(r[:, -1].max() - r[:, 0].min()) + 2.0 * TOLERANCE
+    flat = (r + span * np.arange(len(EXPONENTS))[:, None]).ravel()
+    cumulative = np.concatenate([[0.0], np.cumsum(w[order].ravel())])
+    end = np.searchsorted(flat, flat + TOLERANCE, side="right")
+    inside = (cumulative[end] - cumulative[:-1]).reshape(r.shape)  # weight in [r, r + TOLERANCE] of each start
+    best = np.argmax(inside, axis=1)
+    counts = inside[np.arange(len(EXPONENTS)), best]
+    ties = np.flatnonzero(counts >= TIE * counts.max())
+    k = int(ties[np.argmin(np.abs(EXPONENTS[ties] - 1.0))])
+    return float(r[k, best[k]] + TOLERANCE / 2.0), float(EXPONENTS[k])
+
+
+def border_weights(shape: tuple[int, int]) -> np.ndarray:
+    """(rows, cols) how much a block counts in the mode search: ``BORDER_WEIGHT[0] + BORDER_WEIGHT[1] r^2``,
+    r the block's distance from the image centre in half-sizes (1 at the middle of an edge). A press
+    lights up a blob; the gel's border is the last place it reaches, so there the untouched gel is most
+    often seen (a flat face pressed into the gel shifts its middle's colours almost uniformly, which a
+    count over all blocks could take for the light)."""
+    rows, cols = shape
+    v = (np.arange(rows) + 0.5) / rows * 2.0 - 1.0
+    u = (np.arange(cols) + 0.5) / cols * 2.0 - 1.0
+    return BORDER_WEIGHT[0] + BORDER_WEIGHT[1] * (v[:, None] ** 2 + u[None, :] ** 2)
+
+
+def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray, prior: float) -> tuple[float, float]:
+    """argmin over (a, b) of sum w (y - a - b x)^2 + prior (b - 1)^2."""
+    sw, sx, sy = w.sum(), (w * x).sum(), (w * y).sum()
+    sxx, sxy = (w * x * x).sum() + prior, (w * x * y).sum() + prior
+    det = sw * sxx - sx * sx
+    if sw <= 0 or det <= 0:
+        return 0.0, 1.0
+    return float((sxx * sy - sx * sxy) / det), float((sw * sxy - sx * sy) / det)
+
+
+def fit_light(image: np.ndarray, background: np.ndarray) -> LightFit:
+    """How image (H, W, 3) uint8's light differs from its no-contact image background (H, W, 3) uint8."""
+    rec, exp_ = block_means(image), block_means(background)
+    log_gain, exponent, residual = np.zeros(3), np.ones(3), np.zeros(3)
+    outlier = np.zeros(rec.shape[:2], dtype=bool)
+    search = np.zeros(rec.shape[:2], dtype=bool)
+    search[::SEARCH_STRIDE, ::SEARCH_STRIDE] = True
+    weights = border_weights(rec.shape[:2]).ravel()
+    for c in range(3):
+        a, b, scale, inliers = fit_channel(rec[..., c].ravel(), exp_[..., c].ravel(), search.ravel(), weights)
+        log_gain[c], exponent[c] = a, b
+        # The log spread in grey levels at the channel's median no-contact value.
+        residual[c] = scale * float(np.median(exp_[..., c]))
+        outlier |= ~inliers.reshape(outlier.shape)
+    return LightFit(log_gain, exponent, residual, float(outlier.mean()))
+
+
+def lookup_tables(fit: LightFit) -> np.ndarray:
+    """(3, 256) uint8: per channel, each recorded value mapped to the no-contact image's light."""
+    values = np.arange(256, dtype=np.float64)
+    recorded = np.maximum(values, 0.5) / 255.0
+    out = 255.0 * np.exp(fit.log_gain[:, None] + fit.exponent[:, None] * np.log(recorded)[None, :])
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def apply_light(image: np.ndarray, fit: LightFit) -> np.ndarray:
+    """image (H, W, 3) uint8 -> the same under its no-contact image's light (``lookup_tables``)."""
+    tables = lookup_tables(fit)
+    out = np.empty_like(image)
+    for c in range(3):
+        out[..., c] = tables[c][image[..., c]]
+    return out
+
+
+def align_images(images: np.ndarray, backgrounds: np.ndarray) -> tuple[np.ndarray, list[LightFit]]:
+    """Each image (L, H, W, 3) uint8 brought to its own no-contact image's light (backgrounds (L, H, W, 3)
+    uint8, one per image) -> (aligned images (L, H, W, 3) uint8, each image's ``LightFit``). Left as it
+    is (``applied`` False): an image whose fit is not trustworthy, and one the fit would change by less
+    than ``MIN_CHANGE`` grey levels on average: on images under their no-contact image's own light the
+    fit, which a large press biases, moves them by about 1 grey level, and reading them so cost accuracy
+    (docs/real_sensors.md)."""
+    out, fits = [], []
+    for image, background in zip(images, backgrounds):
+        fit = fit_light(image, background)
+        aligned = apply_light(image, fit)
+        if not fit.trustworthy or np.abs(aligned.astype(np.int16) - image).mean() < MIN_CHANGE:
+            aligned, fit = image, replace(fit, applied=False)
+        out.append(aligned)
+        fits.append(fit)
+    return np.stack(out), fits
+
+
+class LightWarning(UserWarning):
+    """An image's light differs from its no-contact image's more than a unit's drift (``LightFit.problems``)."""
+
+
+def warn_about_light(fits: list[LightFit], stacklevel: int = 4) -> None:
+    """A ``LightWarning`` per image whose fit is not trustworthy, naming the image (sensor order) and why.
+    stacklevel: as ``warnings.warn``'s; 4 names the line that called ``Estimator.estimate``."""
+    for i, fit in enumerate(fits):
+        for problem in fit.problems():
+            warnings.warn(f"image {i}: {problem}; read as given, without aligning its light (if the light did "
+                          "change, record its no-contact image again)", LightWarning, stacklevel=stacklevel)
+
+
+def background_from_images(images: np.ndarray, min_images: int = 5) -> np.ndarray | None:
+    """A unit's no-contact image (H, W, 3) uint8 estimated from several of its images (n, H, W, 3) uint8 that
+    touch in different places: each pixel's median over them. None for fewer than ``min_images`` (a pixel
+    touched in half of the images or more would take the contact's colour)."""
+    images = np.asarray(images)
+    if len(images) < min_images:
+        return None
+    return np.median(images, axis=0).round().astype(np.uint8)
