@@ -16,6 +16,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from tactile6d.sim.gel_press import mask_iou
+
 MASK_BLUR_KSIZE = 15  # Gaussian kernel, pixels (sigma 2.6)
 MASK_THRESHOLD = 4.0  # grey levels; ~5 noise std after the blur, so that pure noise trips almost no pixel
 
@@ -34,15 +36,6 @@ def contact_mask(
 ) -> np.ndarray:
     """(H, W) bool: pixels whose blurred difference from the background exceeds ``threshold`` in any channel."""
     return np.abs(blurred_difference(image, background, blur_ksize)).max(axis=-1) > threshold
-
-
-def iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boolean masks of the same shape; 1.0 when both are empty."""
-    a, b = np.asarray(a, dtype=bool), np.asarray(b, dtype=bool)
-    if a.shape != b.shape:
-        raise ValueError(f"mask shapes differ: {a.shape} vs {b.shape}")
-    union = np.count_nonzero(a | b)
-    return 1.0 if union == 0 else np.count_nonzero(a & b) / union
 
 
 def pearson(a: np.ndarray, b: np.ndarray) -> float:
@@ -68,7 +61,7 @@ def compare(
     diff_sim = blurred_difference(simulated, background, blur_ksize)
     mask_ref = np.abs(diff_ref).max(axis=-1) > threshold
     mask_sim = np.abs(diff_sim).max(axis=-1) > threshold
-    return {"iou": iou(mask_ref, mask_sim), "corr": pearson(diff_ref, diff_sim)}
+    return {"iou": float(mask_iou(mask_ref, mask_sim)), "corr": pearson(diff_ref, diff_sim)}
 
 
 def imprint_view(image: np.ndarray, background: np.ndarray, gain: float = 4.0) -> np.ndarray:
