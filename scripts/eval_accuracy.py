@@ -30,7 +30,8 @@ from tactile6d.data.hdf5 import read_artifact
 from tactile6d.estimation.estimator import Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.evaluation import scoring
-from tactile6d.evaluation.sensor_subsets import ERROR_KEYS, estimate_and_score
+from tactile6d.evaluation.metric_table import ERROR_KEYS
+from tactile6d.evaluation.sensor_subsets import estimate_and_score
 from tactile6d.sim import scenes, surface_sampling
 
 

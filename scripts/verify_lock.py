@@ -2,6 +2,7 @@
 
     python scripts/verify_lock.py sample_distractors report
     python scripts/verify_lock.py --ignore-timings 'render_database@*'
+    python scripts/verify_lock.py --against ../old-run --ignore-timings     # after a full dvc repro
 
 A stage may be recorded with ``dvc commit -f STAGE`` instead of re-run only when this script has re-made
 its outputs with the workspace's code and found them identical to what dvc.lock records
@@ -27,6 +28,12 @@ it; shell patterns such as ``render_database@*`` select several) it:
 ``--ignore-timings`` does not compare datasets, attributes and JSON keys whose names look like timings
 (``seconds``, ``seconds_*``, ``*_seconds``, ``time_s*``, ``wall_s``, ``*_s``, ``*_per_s``): an out that
 differs only there counts as identical, and the line says which names were left out.
+
+``--against OLD`` re-makes nothing: after a full ``dvc repro`` of this workspace, it compares every out that
+this workspace's dvc.lock records with what OLD's dvc.lock records for the same stage (OLD: another
+checkout of the project that ran the pipeline, its files or its DVC cache holding the recorded versions),
+the same way, and prints one line per out that differs and a count of outs by verdict. Stage patterns then
+narrow the comparison (default: every stage of this workspace's dvc.yaml).
 
 Exit status: 0 when every out of every stage is identical, 1 when an out differs, 2 when a stage could not
 be verified (unknown stage, changed data dep or param, missing dep, the command failed). The last lines
@@ -122,11 +129,8 @@ def cache_dir(root: Path) -> Path:
 
 def file_md5(path: Path) -> str:
     """md5 of the bytes (DVC 3's ``hash: md5``)."""
-    digest = hashlib.md5()
     with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return hashlib.file_digest(f, "md5").hexdigest()
 
 
 def dir_listing(path: Path) -> dict[str, str]:
@@ -684,18 +688,66 @@ def summary(results: list[StageResult], unknown: list[str], argv: list[str], roo
     return "\n".join(lines)
 
 
+def compare_runs(root: Path, old_root: Path, patterns: list[str], ignore_timings: bool) -> int:
+    """``--against``: every out of ``root``'s lock (its stages matching ``patterns``, those of its dvc.yaml when
+    none) against
+    ``old_root``'s record of it. Prints the outs that differ and the count by verdict; returns the exit status."""
+    stages, old_stages = lock_stages(root), lock_stages(old_root)
+    names, unknown = select_stages(stages, patterns or pipeline_stages(root))
+    old_cache = cache_dir(old_root)
+    counts: dict[str, int] = {}
+    only_here = [name for name in names if name not in old_stages]
+    for name in names:
+        if name in only_here:
+            continue
+        for out in old_stages[name].get("outs", []):
+            result = compare_out(old_root, old_cache, root, out, ignore_timings)
+            verdict = "same md5" if result.verdict == "identical" else result.verdict
+            counts[verdict] = counts.get(verdict, 0) + 1
+            if not result.identical:
+                print(f"{name}: {result.path}: {verdict}")
+                for line in result.details[:MAX_DETAIL_LINES]:
+                    print(f"    {line}")
+    for pattern in unknown:
+        print(f"{pattern}: no stage of this workspace's dvc.lock matches it")
+    n_outs = sum(counts.values())
+    print(f"\n{git_head(root)} against {old_root} ({git_head(old_root)}): {len(names) - len(only_here)} stages, "
+          f"{n_outs} outs: " + ", ".join(f"{counts[v]} {v}" for v in sorted(counts)))
+    if only_here:
+        print(f"stages not in {old_root}'s dvc.lock (nothing to compare): {', '.join(only_here)}")
+    if unknown:
+        return UNVERIFIED
+    return OK if all(v in ("same md5", "identical except timings") for v in counts) else DIFFERS
+
+
+def pipeline_stages(root: Path) -> list[str]:
+    """The stages of ``root``'s dvc.yaml (``dvc stage list``): dvc.lock may keep entries of stages since removed."""
+    proc = subprocess.run([sys.executable, "-m", "dvc", "stage", "list", "--name-only"], cwd=root, capture_output=True,
+                          text=True, env=dict(os.environ, DVC_NO_ANALYTICS="1"))
+    if proc.returncode != 0:
+        raise SystemExit(f"error: `dvc stage list` failed in {root}: {proc.stderr.strip()}")
+    return proc.stdout.split()
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("stages", nargs="+", help="stage names as dvc.lock spells them; shell patterns allowed")
+    parser.add_argument("stages", nargs="*", help="stage names as dvc.lock spells them; shell patterns allowed "
+                                                  "(required unless --against)")
     parser.add_argument("--ignore-timings", action="store_true",
                         help="do not compare datasets/attributes/keys named like timings (seconds_*, time_s*, ...)")
     parser.add_argument("--repo", default=".", help="root of the DVC repository (default: the current folder)")
+    parser.add_argument("--against", metavar="OLD", default=None,
+                        help="re-make nothing: compare this workspace's outs with those OLD's dvc.lock records")
     parser.add_argument("--tmp-dir", default=None, help="where to make the shadow workspaces (default: the system's)")
     parser.add_argument("--keep", action="store_true", help="keep the shadow workspaces and logs, and say where")
     args = parser.parse_args(argv)
 
     root = Path(args.repo).resolve()
+    if args.against is not None:
+        return compare_runs(root, Path(args.against).resolve(), args.stages, args.ignore_timings)
+    if not args.stages:
+        parser.error("name the stages to re-make (or give --against OLD)")
     stages = lock_stages(root)
     names, unknown = select_stages(stages, args.stages)
     for pattern in unknown:

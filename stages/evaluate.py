@@ -24,6 +24,7 @@ from tactile6d.data.hdf5 import read_artifact, write_json, write_text
 from tactile6d.data.object_artifacts import load_surface_points
 from tactile6d.estimation import confidence
 from tactile6d.evaluation import scoring
+from tactile6d.evaluation.metric_table import ERROR_KEYS, HEADLINE_KEYS
 from tactile6d.runtime.stage_args import parse_stage_args
 from tactile6d.runtime.stage_clock import timed
 from tactile6d.sim import gel_press
@@ -42,7 +43,7 @@ def method_errors(ranked, scenes, objects_data, meshes, k: int, image_step: int,
     names = scenes["names"].tolist()
     if ranked["names"].tolist() != names:
         raise ValueError("ranked poses and scenes list different scenes: re-run the pipeline")
-    rows = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok", "contact_image_ok")}
+    rows = {key: [] for key in (*ERROR_KEYS, "contact_image_ok")}
     for s in tqdm(range(len(names)), desc="evaluate", unit="scene", leave=False):
         obj = str(scenes["objects"][s])
         ref = objects_data[obj]
@@ -139,8 +140,8 @@ def main(argv: list[str] | None = None) -> int:
                                              "per_scene": dict(zip(scenes["names"].tolist(), probabilities))}
         print(f"{args.scene_set}/{method}: " + ", ".join(
             f"{key} {headline[method].get(key, float('nan')):.2f}"
-            for key in ("pos_err_cm_top1", "adi_auc_paper_top1", "adi_auc_rot_top1", "contact_acc_top1",
-                        "contact_acc_image_top1", "confidence_auroc_adi1cm", "time_s_median")))
+            for key in (*HEADLINE_KEYS, "contact_acc_top1", "contact_acc_image_top1", "confidence_auroc_adi1cm",
+                        "time_s_median")))
 
     write_json(layout.metrics_file(artifacts, args.scene_set), headline)
     eval_dir = Path(artifacts) / "eval"

@@ -16,13 +16,13 @@ import sys
 import warnings
 
 import numpy as np
-import trimesh
 from tqdm import tqdm
 
-from tactile6d.core.config import require, section_to_dict
+from tactile6d.core.config import require_key, section_to_dict
 from tactile6d.core.errors import exit_on_error
 from tactile6d.data import layout
-from tactile6d.data.hdf5 import read_artifact, read_scene_dir, write_artifact
+from tactile6d.data.hdf5 import read_scene_dir, write_artifact
+from tactile6d.data.object_artifacts import load_mesh, load_surface_points
 from tactile6d.data.third_party import DataStore, group_files, group_names
 from tactile6d.runtime.stage_args import parse_stage_args
 from tactile6d.runtime.stage_clock import timed
@@ -33,11 +33,6 @@ SCENE_SETS = ("caddeo2023", "validation", "offaxis", "variation", "kinematic", "
 # The generated sets that fit something rather than measure it, with the config section each is drawn
 # from: kept out of ``scenes`` so that editing one re-makes no evaluated set.
 FIT_SETS = {"calibration": "identify.calibration_scenes", "confidence": "confidence.scenes"}
-
-
-def load_mesh(artifacts_dir: str, name: str) -> trimesh.Trimesh:
-    art = read_artifact(layout.object_file(artifacts_dir, name), "object")
-    return trimesh.Trimesh(art["vertices"], art["faces"], process=False)
 
 
 def import_caddeo2023(object_names: list[str], store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
@@ -70,7 +65,7 @@ def scene_spec(cfg, scene_set: str):
     """The config section a generated set is drawn from: ``FIT_SETS``'s for the sets that fit the
     identification weights or the confidence, ``scenes.<scene_set>`` otherwise."""
     if scene_set in FIT_SETS:
-        return require(cfg, FIT_SETS[scene_set])
+        return require_key(cfg, FIT_SETS[scene_set])
     return cfg.scenes[scene_set]
 
 
@@ -89,7 +84,7 @@ def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, art
     )
     meshes = {o: load_mesh(artifacts_dir, o) for o in object_names}
     surfaces = {o: surface_sampling.sample_surface(m) for o, m in meshes.items()}
-    database = {o: read_artifact(layout.surface_file(artifacts_dir, o), "surface")["points"] for o in object_names}
+    database = {o: load_surface_points(artifacts_dir, o) for o in object_names}
     renderer = DigitRenderer.from_config(cfg.render, load_background_bgr(cfg, store), workers=1)
 
     def render(obj, T_world_object, T_world_sensors, seed):

@@ -19,9 +19,10 @@ from tactile6d.core.errors import exit_on_error
 from tactile6d.core.settings import METHODS, RankSettings, SensorSettings
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_artifact
+from tactile6d.data.object_artifacts import load_collision_vertices, load_mesh
 from tactile6d.data.schemas import CONTACT_FIELDS
-from tactile6d.estimation.collision import PenetrationModel
-from tactile6d.estimation.rank import load_mesh, load_pieces, rank
+from tactile6d.estimation.collision import PenetrationModel, vertices_to_pieces
+from tactile6d.estimation.rank import rank
 from tactile6d.estimation.run_storage import carried, expand_hypotheses, scene_contacts
 from tactile6d.runtime.stage_args import median_or_nan, parse_run_stage_args
 from tactile6d.runtime.stage_clock import timed
@@ -36,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     run = layout.run_dir(artifacts, args.scene_set, args.method)
     hyp = read_artifact(run / "hypotheses.h5", "hypotheses")
     names, objects, T_world_sensors = hyp["names"], hyp["objects"], hyp["T_world_sensors"]
-    models = {name: PenetrationModel(load_pieces(artifacts, name)) for name in sorted(set(objects))}
+    models = {name: PenetrationModel(vertices_to_pieces(load_collision_vertices(artifacts, name)))
+              for name in sorted(set(objects))}
     meshes = {name: load_mesh(artifacts, name) if settings.rescores else None for name in sorted(set(objects))}
     surfaces = {name: sample_surface(mesh) if settings.refine else None for name, mesh in meshes.items()}
 

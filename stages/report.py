@@ -25,23 +25,14 @@ from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_text
 from tactile6d.estimation import confidence
 from tactile6d.evaluation import plots
-from tactile6d.evaluation.scoring import PAPER_TABLE_I, ablation_markdown
+from tactile6d.evaluation.metric_table import LABELS, METRICS
+from tactile6d.evaluation.scoring import ablation_markdown
 from tactile6d.runtime import stage_clock
 from tactile6d.runtime.stage_args import parse_stage_args
 
 REPORT_DIR = Path("reports")
 FIGURE_SCENES = 4  # pose and Omega figures for this many scenes (one per object, in order)
 
-# What tactile6d must reach on caddeo2023 (ours, L = 3), as raised on 2026-11-22 (docs/design.md, The metrics).
-TARGETS = {"pos_err_cm_top1": ("<", 1.5), "adi_auc_paper_top1": (">", 90.0), "adi_auc_rot_top1": (">", 95.0),
-           "contact_acc_top1": (">", 87.5), "contact_acc_image_top1": (">", 90.0), "time_s_median": ("<=", 0.5)}
-LABELS = {"pos_err_cm_top1": "positional error #1 (cm)",
-          "pos_err_cm_top1_median": "positional error #1, median over scenes (cm)",
-          "pos_err_cm_top5": "positional error #1-5 (cm)",
-          "adi_auc_paper_top1": "ADI-AUC #1 (%, paper's VOCap)", "adi_auc_std_top1": "ADI-AUC #1 (%, standard)",
-          "adi_auc_rot_top1": "rotation ADI-AUC #1 (%)", "contact_acc_top1": "contact accuracy #1 (%, classifier)",
-          "contact_acc_image_top1": "contact accuracy #1 (%, image-consistent)",
-          "time_s_median": "time per estimate (s, median)"}
 _COMPARE = {"<": lambda a, b: a < b, "<=": lambda a, b: a <= b, ">": lambda a, b: a > b}
 
 
@@ -68,10 +59,10 @@ def headline_table(metrics: dict, with_paper: bool = True, rerun: dict | None = 
     header = ("| metric | tactile6d (ours) | tactile6d baseline | paper's method, re-run here | paper, Table I (ours) "
               "| paper, Table I (baseline) | target | met |")
     lines = [header, "|---|---|---|---|---|---|---|---|"]
-    for key, label in LABELS.items():
+    for metric in METRICS:
+        key, label, target, paper, paper_base = (metric.key, metric.label, metric.target, metric.paper_ours,
+                                                 metric.paper_baseline)
         ours, base = metrics.get("ours", {}).get(key), metrics.get("baseline", {}).get(key)
-        paper, paper_base = PAPER_TABLE_I["ours"].get(key), PAPER_TABLE_I["baseline"].get(key)
-        target = TARGETS.get(key)
         met = ""
         if target is not None and ours is not None:
             met = "yes" if _COMPARE[target[0]](ours, target[1]) else "**no**"

@@ -22,7 +22,7 @@ from tactile6d.core.errors import NoMatch, exit_on_error
 from tactile6d.core.settings import METHODS, SelectSettings, SensorSettings
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_artifact
-from tactile6d.data.object_artifacts import load_surface_normals, load_surface_points
+from tactile6d.data.object_artifacts import load_database_angles, load_surface_normals, load_surface_points
 from tactile6d.estimation.run_storage import stack_contacts, stack_ragged
 from tactile6d.estimation.select import select
 from tactile6d.perception.autoencoder import load_checkpoint
@@ -30,7 +30,6 @@ from tactile6d.perception.encode import (
     LatentAngleEncoder,
     align_light,
     load_background,
-    load_database_angles,
     load_patch_model,
     read_angles,
     read_contacts,
@@ -42,7 +41,8 @@ from tactile6d.sim.scenes import scene_set_from_artifact
 
 
 class Database:
-    """Each object's points and latent angles, loaded once; the autoencoder, loaded once (method ours)."""
+    """What selection reads of each object: its points and latent angles (``data.object_artifacts``, which
+    reads each file once), and the autoencoder, loaded once (method ours)."""
 
     def __init__(self, cfg, ours: bool, normals: bool = False):
         self.artifacts = cfg.paths.artifacts_dir
@@ -51,20 +51,15 @@ class Database:
         if ours:
             self.model, self.norm, _ = load_checkpoint(layout.ae_checkpoint(self.artifacts))
             self.background = load_background(cfg)
-        self._cache = {}
 
     def __getitem__(self, name: str):
         """-> (points (M, 3), database angles (M,) or None, encoder or None, normals (M, 3) or None)."""
-        if name not in self._cache:
-            points = load_surface_points(self.artifacts, name)
-            normals = load_surface_normals(self.artifacts, name) if self.normals else None
-            if self.ours:
-                angles, latent_nc = load_database_angles(self.artifacts, name)
-                encoder = LatentAngleEncoder(self.model, self.norm, self.background, latent_nc)
-                self._cache[name] = (points, angles, encoder, normals)
-            else:
-                self._cache[name] = (points, None, None, normals)
-        return self._cache[name]
+        points = load_surface_points(self.artifacts, name)
+        normals = load_surface_normals(self.artifacts, name) if self.normals else None
+        if not self.ours:
+            return points, None, None, normals
+        angles, latent_nc = load_database_angles(self.artifacts, name)
+        return points, angles, LatentAngleEncoder(self.model, self.norm, self.background, latent_nc), normals
 
 
 def main(argv: list[str] | None = None) -> int:

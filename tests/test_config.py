@@ -2,7 +2,7 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from tactile6d.core.config import REPO_ROOT, compose_config, load_params, require
+from tactile6d.core.config import REPO_ROOT, compose_config, load_params, require_key
 from tactile6d.core.errors import ConfigError
 
 
@@ -22,7 +22,7 @@ def test_unknown_key_is_a_config_error():
     with pytest.raises(ConfigError, match="sample.nope"):
         compose_config(["sample.nope=1"])
     with pytest.raises(ConfigError, match="missing config key 'sample.nope'"):
-        require(compose_config(), "sample.nope")
+        require_key(compose_config(), "sample.nope")
 
 
 def test_params_file_overrides(tmp_path):

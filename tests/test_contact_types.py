@@ -22,6 +22,11 @@ def _names(surface, points, normals):
     return list(C.contact_type_names(C.classify_contacts(surface, points, normals)))
 
 
+def _single(*args):
+    """The accuracy of one estimate: ``(correct, details)``."""
+    return contact_accuracy.accuracy_to_details(contact_accuracy.contact_accuracy(*args))
+
+
 def _unit(v):
     v = np.asarray(v, dtype=float)
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
@@ -69,7 +74,7 @@ def _scene(rng):
 
 def test_contact_accuracy_at_the_true_pose(box):
     T_gt, T_sensors = _scene(np.random.default_rng(5))
-    ok, details = contact_accuracy.contact_accuracy_single(box, T_gt, T_gt, T_sensors)
+    ok, details = _single(box, T_gt, T_gt, T_sensors)
     assert ok
     assert list(details["type_true_names"]) == ["flat", "edge", "corner"]
     np.testing.assert_allclose(details["signed_distance"], 0.0002, atol=1e-6)
@@ -80,7 +85,7 @@ def test_contact_accuracy_rejects_a_gap(box):
     T_gt, T_sensors = _scene(np.random.default_rng(6))
     # move the object 1 cm away from the face sensor, along that face's normal (+x of the object)
     T_est = T_gt @ g.make_pose(np.eye(3), [-0.01, 0, 0])
-    ok, details = contact_accuracy.contact_accuracy_single(box, T_est, T_gt, T_sensors)
+    ok, details = _single(box, T_est, T_gt, T_sensors)
     assert not ok
     assert details["signed_distance"][0] == pytest.approx(0.0102, abs=1e-6)
     assert not details["touching"][0]
@@ -93,10 +98,10 @@ def test_contact_accuracy_rejects_a_changed_contact_type(box):
     points = np.array([[HX - 0.012, 0, HZ], [0, -HY, 0], [0.0, 0.01, -HZ]])
     normals = np.array([[0, 0, 1.0], [0, -1, 0], [0, 0, -1]])
     T_sensors = T_gt @ sensor.sensor_poses_touching(points, normals)
-    assert contact_accuracy.contact_accuracy_single(box, T_gt, T_gt, T_sensors)[0]
+    assert _single(box, T_gt, T_gt, T_sensors)[0]
     # slide the object 12 mm along -x: every sensor still touches, but the first now sits on an edge
     T_est = T_gt @ g.make_pose(np.eye(3), [-0.012, 0, 0])
-    ok, details = contact_accuracy.contact_accuracy_single(box, T_est, T_gt, T_sensors)
+    ok, details = _single(box, T_est, T_gt, T_sensors)
     assert not ok
     assert details["touching"].all()
     assert list(details["type_est_names"]) == ["edge", "flat", "flat"]
@@ -107,7 +112,7 @@ def test_contact_accuracy_rejects_a_sensor_side_on(box):
     # the contact point lies on the top face, but the sensor looks sideways (along -x): its gel
     # cannot press a surface whose normal is perpendicular to its axis
     T_sensor = sensor.sensor_poses_touching(np.array([0, 0, HZ]), np.array([1.0, 0, 0]), depths=0.002)
-    ok, details = contact_accuracy.contact_accuracy_single(box, np.eye(4), np.eye(4), T_sensor[None])
+    ok, details = _single(box, np.eye(4), np.eye(4), T_sensor[None])
     assert not ok
     assert abs(details["signed_distance"][0]) < 1e-9 and not details["facing"][0]
 
@@ -118,7 +123,7 @@ def test_batched_matches_single(box):
     T_est = np.stack([T_gt, T_gt @ g.make_pose(np.eye(3), [0.02, 0, 0]), T_gt @ g.make_pose(np.eye(3), [0, 0, 0.001])])
     result = contact_accuracy.contact_accuracy(box, T_est, T_gt, T_sensors)
     assert result["correct"].shape == (3,) and result["signed_distance"].shape == (3, 3)
-    assert list(result["correct"]) == [contact_accuracy.contact_accuracy_single(box, T, T_gt, T_sensors)[0] for T in T_est]
+    assert list(result["correct"]) == [_single(box, T, T_gt, T_sensors)[0] for T in T_est]
     assert result["correct"][0] and not result["correct"][1]
 
 
@@ -145,7 +150,7 @@ def test_sugar_box_paper_triplets_are_correct_at_the_true_pose(sugar_box):
     T_gt = g.make_pose(np.eye(3), [0.1, 0.0, 0.2])
     for k in range(1, 5):
         text = (data / "caddeo2023" / "triplets" / "004_sugar_box" / f"triplet_{k}" / "poses_sensors.txt").read_text()
-        ok, details = contact_accuracy.contact_accuracy_single(surface, T_gt, T_gt, g.text_to_poses(text))
+        ok, details = _single(surface, T_gt, T_gt, g.text_to_poses(text))
         assert ok, details
 
 

@@ -49,16 +49,6 @@ def test_degenerate_and_missing_meshes(tmp_path):
         meshes.load_mesh_file(junk)
 
 
-def test_pack_unpack_pieces():
-    a = trimesh.creation.box(extents=(1, 1, 1))
-    b = trimesh.creation.icosphere(subdivisions=1)
-    pieces = [(a.vertices, a.faces), (b.vertices, b.faces)]
-    back = meshes.unpack_pieces(meshes.pack_pieces(pieces))
-    for (v0, f0), (v1, f1) in zip(pieces, back):
-        np.testing.assert_array_equal(v0, v1)
-        np.testing.assert_array_equal(f0, f1)
-
-
 def test_collision_fidelity_of_exact_and_loose_pieces():
     box = trimesh.creation.box(extents=(0.1, 0.06, 0.04))
     rng = np.random.default_rng(0)

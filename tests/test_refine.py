@@ -55,12 +55,12 @@ def test_refinement_recovers_a_slightly_wrong_pose(name, seed):
     direction = rng.normal(size=3)
     wrong = T_true @ g.make_pose(g.rotvec_to_rotmat(axis / np.linalg.norm(axis) * np.radians(rng.uniform(2, 5))),
                                  direction / np.linalg.norm(direction) * rng.uniform(0.002, 0.005))
-    refined = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10, normal_weight=0.01)[0]
+    refined = refine.refine_poses(refine.SurfaceFit(surface, s, n, normal_weight=0.01), wrong[None], n_iterations=10)[0]
     assert np.linalg.norm(refined[:3, 3] - T_true[:3, 3]) < 5e-4
     assert np.degrees(g.rotation_angle(refined[:3, :3], T_true[:3, :3])) < 0.5
-    d, a = refine.surface_losses(surface, refined[None], s, n)
+    d, a = refine.surface_losses(refine.SurfaceFit(surface, s, n), refined[None])
     assert d[0] < 2e-4 and np.degrees(a[0]) < 0.5
-    _d0, a0 = refine.surface_losses(surface, wrong[None], s, n)
+    _d0, a0 = refine.surface_losses(refine.SurfaceFit(surface, s, n), wrong[None])
     assert a0[0] > a[0]
 
 
@@ -73,11 +73,11 @@ def test_refinement_is_vectorised_over_poses_and_keeps_a_right_pose():
     s, n = contact_points(T_sensors), contact_normals(T_sensors)
     starts = np.stack([T_true] + [T_true @ g.make_pose(g.rotvec_to_rotmat(rng.normal(scale=0.04, size=3)),
                                                         rng.normal(scale=0.002, size=3)) for _ in range(6)])
-    out = refine.refine_poses(surface, starts, s, n, n_iterations=10)
+    out = refine.refine_poses(refine.SurfaceFit(surface, s, n), starts, n_iterations=10)
     assert out.shape == starts.shape
     np.testing.assert_allclose(out[:, :3, 3], np.repeat(T_true[None, :3, 3], 7, axis=0), atol=5e-4)
     assert np.linalg.norm(out[0, :3, 3] - T_true[:3, 3]) < 1e-6
-    assert refine.refine_poses(surface, np.zeros((0, 4, 4)), s, n).shape == (0, 4, 4)
+    assert refine.refine_poses(refine.SurfaceFit(surface, s, n), np.zeros((0, 4, 4))).shape == (0, 4, 4)
 
 
 def _face_patch(centre, normal, half_width=0.008, n=5):
@@ -101,9 +101,9 @@ def test_patch_points_fix_the_rotation_that_three_contact_points_leave_free():
     weights = np.full(len(patch), 1.0 / np.sqrt(25))
     wrong = T_true @ g.make_pose(g.rotvec_to_rotmat(np.radians(4.0) * np.array([0.6, 0.0, 0.8])), [0.002, -0.002, 0.001])
     # Three point-to-plane residuals (no normal term) leave three degrees of freedom to the prior.
-    points_only = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10, normal_weight=0.0)[0]
+    points_only = refine.refine_poses(refine.SurfaceFit(surface, s, n, normal_weight=0.0), wrong[None], n_iterations=10)[0]
     assert np.degrees(g.rotation_angle(points_only[:3, :3], T_true[:3, :3])) > 1.0
-    with_patch = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10, normal_weight=0.0,
+    with_patch = refine.refine_poses(refine.SurfaceFit(surface, s, n, normal_weight=0.0), wrong[None], n_iterations=10,
                                      patch_points=patch, patch_weights=weights)[0]
     assert np.degrees(g.rotation_angle(with_patch[:3, :3], T_true[:3, :3])) < 0.3
     assert np.linalg.norm(with_patch[:3, 3] - T_true[:3, 3]) < 5e-4
@@ -118,8 +118,8 @@ def test_sensor_corrections_vanish_as_their_sigmas_do():
     T_sensors = T_true @ sensor_poses_touching(points, normals, 0.0, 0.002)
     s, n = contact_points(T_sensors), contact_normals(T_sensors)
     wrong = T_true @ g.make_pose(g.rotvec_to_rotmat(np.radians(3.0) * np.array([0.0, 0.6, 0.8])), [0.002, 0.001, -0.002])
-    plain = refine.refine_poses(surface, wrong[None], s, n, n_iterations=10)
-    joint, seen = refine.refine_poses_and_sensors(surface, wrong[None], s, n, 1e-9, 1e-9, n_iterations=10)
+    plain = refine.refine_poses(refine.SurfaceFit(surface, s, n), wrong[None], n_iterations=10)
+    joint, seen = refine.refine_poses_and_sensors(refine.SurfaceFit(surface, s, n), wrong[None], 1e-9, 1e-9, n_iterations=10)
     assert seen.shape == (1, 3, 4, 4)
     np.testing.assert_allclose(joint, plain, atol=1e-6)
     np.testing.assert_allclose(seen, np.repeat(joint[:, None], 3, axis=1), atol=1e-6)
@@ -138,15 +138,14 @@ def test_sensor_corrections_absorb_what_no_object_pose_explains():
     s, n = local_points @ T_true[:3, :3].T + T_true[:3, 3], local_normals @ T_true[:3, :3].T
     patch, owners, weights = local_patch @ T_true[:3, :3].T + T_true[:3, 3], np.repeat(np.arange(3), 25), np.full(75, 0.2)
     sigma_contact, sigma_angle = 0.0015, np.radians(1.5)
-    plain = refine.refine_poses(surface, T_true[None], s, n, n_iterations=10, patch_points=patch,
-                                patch_weights=weights)
-    joint, seen = refine.refine_poses_and_sensors(surface, T_true[None], s, n, sigma_contact, sigma_angle,
-                                                  n_iterations=10, patch_points=patch, patch_weights=weights,
-                                                  patch_owners=owners)
+    fit = refine.SurfaceFit(surface, s, n)
+    plain = refine.refine_poses(fit, T_true[None], n_iterations=10, patch_points=patch, patch_weights=weights)
+    joint, seen = refine.refine_poses_and_sensors(fit, T_true[None], sigma_contact, sigma_angle, n_iterations=10,
+                                                  patch_points=patch, patch_weights=weights, patch_owners=owners)
     assert np.degrees(g.rotation_angle(plain[0, :3, :3], T_true[:3, :3])) > 1.5
     assert np.degrees(g.rotation_angle(joint[0, :3, :3], T_true[:3, :3])) < 1.0
-    _, angle_plain = refine.surface_losses(surface, plain, s, n)
-    _, angle_joint = refine.surface_losses(surface, seen, s, n)
+    _, angle_plain = refine.surface_losses(fit, plain)
+    _, angle_joint = refine.surface_losses(fit, seen)
     assert angle_joint[0] < 0.5 * angle_plain[0]
     # Each squeezing sensor sees the object moved along x (object frame), one each way; the third hardly at all.
     shifts = np.array([(np.linalg.inv(joint[0]) @ seen[0, i])[:3, 3] for i in range(3)])

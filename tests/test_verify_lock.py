@@ -264,3 +264,23 @@ def test_torch_checkpoints_compare_by_tensors_and_the_training_seconds_are_timin
     assert not verify_lock.judge_file(old, new, "model.pt", ignore_timings=False).identical
     judged = verify_lock.judge_file(old, other, "model.pt", ignore_timings=True)
     assert not judged.identical and any(d.startswith("state_dict.w.tensor") for d in judged.details)
+
+
+@pytest.mark.slow
+def test_against_another_run_compares_every_out(repo, built_repo):
+    """--against OLD after a full re-run: the same code gives the same outs (timings aside); a change is named."""
+    env = dict(os.environ, FAKE_SECONDS="9.25")
+    run(["dvc", "repro", "-f", "-q"], repo, env=env)
+    status, out = verify(repo, "--against", str(built_repo))
+    assert status == 1, out  # the timings differ
+    status, out = verify(repo, "--against", str(built_repo), "--ignore-timings")
+    assert status == 0, out
+    # data.json, summary.h5 and parts hold timings; report.md does not
+    assert "2 stages, 4 outs: 3 identical except timings, 1 same md5" in out
+    code = (repo / "summarize.py").read_text()
+    (repo / "summarize.py").write_text(code.replace("total = values.sum()", "total = values.sum() + 1"))
+    run(["dvc", "repro", "-q"], repo, env=env)
+    status, out = verify(repo, "--against", str(built_repo), "--ignore-timings", "summ*")
+    assert status == 1, out
+    assert "summarize: out/summary.h5: differs" in out and "dataset total: 1 of 1 elements differ" in out
+    assert "1 stages, 3 outs:" in out

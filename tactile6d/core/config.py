@@ -88,7 +88,7 @@ def load_config(overrides: list[str] | tuple[str, ...] = (), params_file: Path |
     return compose_config(overrides)
 
 
-def require(cfg: DictConfig, key: str):
+def require_key(cfg: DictConfig, key: str):
     """The value at dotted ``key``; a ConfigError naming the key when it is missing."""
     value = OmegaConf.select(cfg, key, throw_on_missing=False, default="__absent__")
     if isinstance(value, str) and value == "__absent__":
@@ -98,7 +98,7 @@ def require(cfg: DictConfig, key: str):
 
 def section_to_dict(cfg: DictConfig, key: str) -> dict:
     """A config section as a plain dict (for stamping into artifacts)."""
-    return OmegaConf.to_container(require(cfg, key), resolve=True)
+    return OmegaConf.to_container(require_key(cfg, key), resolve=True)
 
 
 def composed_params_yaml(conf_dir: Path | str = CONF_DIR) -> str:

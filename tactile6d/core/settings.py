@@ -21,16 +21,22 @@ DELTA_D_RULES = ("paper", "best_n")
 SOLVERS = ("fast", "gd")
 
 
-def _fields(section: Mapping, cls) -> dict:
-    names = list(cls.__dataclass_fields__)
-    missing = [n for n in names if n not in section]
-    if missing:
-        raise ConfigError(f"config section for {cls.__name__} lacks keys {missing}")
-    return {n: section[n] for n in names}
+class _Section:
+    """A config section as a frozen dataclass: ``from_cfg`` takes exactly its fields from the section (a
+    missing key is a ConfigError naming it); each section checks its values in ``__post_init__``, so that
+    a section built directly or with ``dataclasses.replace`` is checked too."""
+
+    @classmethod
+    def from_cfg(cls, section: Mapping):
+        names = list(cls.__dataclass_fields__)
+        missing = [n for n in names if n not in section]
+        if missing:
+            raise ConfigError(f"config section for {cls.__name__} lacks keys {missing}")
+        return cls(**{n: section[n] for n in names})
 
 
 @dataclass(frozen=True)
-class SensorSettings:
+class SensorSettings(_Section):
     """The ``sensors`` config section (conf/sensors/default.yaml): how far the sensor poses handed to the
     estimator may be off, as a robot's forward kinematics gives them. Per axis, one standard deviation, in
     each sensor's own frame; 0 and 0 declare the poses exact (simulation, the paper's method).
@@ -43,13 +49,10 @@ class SensorSettings:
     pose_sigma_mm: float
     pose_sigma_deg: float
 
-    @classmethod
-    def from_cfg(cls, section: Mapping) -> SensorSettings:
-        out = cls(**_fields(section, cls))
-        if not (out.pose_sigma_mm >= 0 and out.pose_sigma_deg >= 0):
+    def __post_init__(self) -> None:
+        if not (self.pose_sigma_mm >= 0 and self.pose_sigma_deg >= 0):
             raise ConfigError(f"sensors.pose_sigma_mm and sensors.pose_sigma_deg must be >= 0, "
-                              f"got {out.pose_sigma_mm}, {out.pose_sigma_deg}")
-        return out
+                              f"got {self.pose_sigma_mm}, {self.pose_sigma_deg}")
 
     @property
     def exact(self) -> bool:
@@ -92,7 +95,7 @@ class SensorSettings:
 
 
 @dataclass(frozen=True)
-class SelectSettings:
+class SelectSettings(_Section):
     """The ``select`` config section (conf/select/default.yaml documents each key)."""
 
     method: str
@@ -112,23 +115,20 @@ class SelectSettings:
     centre_images: bool
     align_light: bool
 
-    @classmethod
-    def from_cfg(cls, section: Mapping) -> SelectSettings:
-        out = cls(**_fields(section, cls))
-        if out.method not in METHODS:
-            raise ConfigError(f"select.method must be one of {', '.join(METHODS)}, not {out.method!r}")
-        if out.contacts not in CONTACT_SOURCES:
-            raise ConfigError(f"select.contacts must be one of {', '.join(CONTACT_SOURCES)}, not {out.contacts!r}")
-        if out.delta_d_rule not in DELTA_D_RULES:
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ConfigError(f"select.method must be one of {', '.join(METHODS)}, not {self.method!r}")
+        if self.contacts not in CONTACT_SOURCES:
+            raise ConfigError(f"select.contacts must be one of {', '.join(CONTACT_SOURCES)}, not {self.contacts!r}")
+        if self.delta_d_rule not in DELTA_D_RULES:
             raise ConfigError(f"select.delta_d_rule must be one of {', '.join(DELTA_D_RULES)}, "
-                              f"not {out.delta_d_rule!r}")
-        if not (out.delta_h > 0 and out.delta_h_widen_step > 0 and out.delta_h_max >= out.delta_h):
+                              f"not {self.delta_d_rule!r}")
+        if not (self.delta_h > 0 and self.delta_h_widen_step > 0 and self.delta_h_max >= self.delta_h):
             raise ConfigError(f"select needs delta_h > 0, delta_h_widen_step > 0 and delta_h_max >= delta_h; got "
-                              f"{out.delta_h}, {out.delta_h_widen_step}, {out.delta_h_max}")
-        if out.normal_tol_deg is not None and not out.normal_tol_deg > 0:
-            raise ConfigError(f"select.normal_tol_deg must be null (off) or > 0, got {out.normal_tol_deg}")
-        _check_max_sensors("select", out.normal_max_sensors)
-        return out
+                              f"{self.delta_h}, {self.delta_h_widen_step}, {self.delta_h_max}")
+        if self.normal_tol_deg is not None and not self.normal_tol_deg > 0:
+            raise ConfigError(f"select.normal_tol_deg must be null (off) or > 0, got {self.normal_tol_deg}")
+        _check_max_sensors("select", self.normal_max_sensors)
 
     @property
     def uses_normals(self) -> bool:
@@ -168,7 +168,7 @@ def needs_normals(settings: Settings) -> bool:
 
 
 @dataclass(frozen=True)
-class OptimizeSettings:
+class OptimizeSettings(_Section):
     """The ``optimize`` config section (conf/optimize/default.yaml)."""
 
     solver: str
@@ -185,19 +185,16 @@ class OptimizeSettings:
     noise_floor: bool
     normal_max_sensors: int | None
 
-    @classmethod
-    def from_cfg(cls, section: Mapping) -> OptimizeSettings:
-        out = cls(**_fields(section, cls))
-        if out.solver not in SOLVERS:
-            raise ConfigError(f"optimize.solver must be one of {', '.join(SOLVERS)}, not {out.solver!r}")
-        if out.normal_weight < 0:
-            raise ConfigError(f"optimize.normal_weight must be >= 0, got {out.normal_weight}")
-        if out.normal_weight > 0 and out.solver != "fast":
+    def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise ConfigError(f"optimize.solver must be one of {', '.join(SOLVERS)}, not {self.solver!r}")
+        if self.normal_weight < 0:
+            raise ConfigError(f"optimize.normal_weight must be >= 0, got {self.normal_weight}")
+        if self.normal_weight > 0 and self.solver != "fast":
             # the gd solver is the paper's, on positions only: say how to get it rather than drop the term
-            raise ConfigError(f"optimize.normal_weight={out.normal_weight} needs solver fast; with solver "
-                              f"{out.solver!r} set optimize.normal_weight=0 too (or use preset=paper)")
-        _check_max_sensors("optimize", out.normal_max_sensors)
-        return out
+            raise ConfigError(f"optimize.normal_weight={self.normal_weight} needs solver fast; with solver "
+                              f"{self.solver!r} set optimize.normal_weight=0 too (or use preset=paper)")
+        _check_max_sensors("optimize", self.normal_max_sensors)
 
     def noise_for(self, sensors: SensorSettings) -> tuple[float, float]:
         """The fast solver's IRLS floor (m, rad): the contacts' expected error when ``noise_floor`` is on, else
@@ -212,7 +209,7 @@ class OptimizeSettings:
 
 
 @dataclass(frozen=True)
-class RankSettings:
+class RankSettings(_Section):
     """The ``rank`` config section (conf/rank/default.yaml); ``dedup_rotation`` in degrees."""
 
     top_k: int
@@ -235,27 +232,24 @@ class RankSettings:
     agreement_free_depth_weight: float
     pose_correction_weight: float
 
-    @classmethod
-    def from_cfg(cls, section: Mapping) -> RankSettings:
-        out = cls(**_fields(section, cls))
-        if out.top_k < 1 or out.batch < 1:
-            raise ConfigError(f"rank.top_k and rank.batch must be >= 1, got {out.top_k}, {out.batch}")
-        if out.rescores and out.candidates < out.top_k:
-            raise ConfigError(f"rank.candidates ({out.candidates}) must be >= rank.top_k ({out.top_k})")
-        if out.refine and (out.refine_iterations < 1 or out.refine_normal_weight < 0):
+    def __post_init__(self) -> None:
+        if self.top_k < 1 or self.batch < 1:
+            raise ConfigError(f"rank.top_k and rank.batch must be >= 1, got {self.top_k}, {self.batch}")
+        if self.rescores and self.candidates < self.top_k:
+            raise ConfigError(f"rank.candidates ({self.candidates}) must be >= rank.top_k ({self.top_k})")
+        if self.refine and (self.refine_iterations < 1 or self.refine_normal_weight < 0):
             raise ConfigError("rank.refine needs refine_iterations >= 1 and refine_normal_weight >= 0")
-        if out.refine_patch_points < 0 or out.refine_patch_weight < 0:
+        if self.refine_patch_points < 0 or self.refine_patch_weight < 0:
             raise ConfigError(f"rank.refine_patch_points and rank.refine_patch_weight must be >= 0, got "
-                              f"{out.refine_patch_points}, {out.refine_patch_weight}")
-        weights = (out.agreement_weight, out.agreement_free_margin, out.agreement_mask_weight,
-                   out.agreement_depth_weight, out.agreement_free_area_weight, out.agreement_free_depth_weight)
+                              f"{self.refine_patch_points}, {self.refine_patch_weight}")
+        weights = (self.agreement_weight, self.agreement_free_margin, self.agreement_mask_weight,
+                   self.agreement_depth_weight, self.agreement_free_area_weight, self.agreement_free_depth_weight)
         if min(weights) < 0:
             raise ConfigError(f"rank.agreement_* weights and margin must be >= 0, got {weights}")
-        if not out.pose_correction_weight >= 0:
-            raise ConfigError(f"rank.pose_correction_weight must be >= 0, got {out.pose_correction_weight}")
-        if out.agreement_step < 1 or 240 % out.agreement_step or 320 % out.agreement_step:
-            raise ConfigError(f"rank.agreement_step must divide 240 and 320, got {out.agreement_step}")
-        return out
+        if not self.pose_correction_weight >= 0:
+            raise ConfigError(f"rank.pose_correction_weight must be >= 0, got {self.pose_correction_weight}")
+        if self.agreement_step < 1 or 240 % self.agreement_step or 320 % self.agreement_step:
+            raise ConfigError(f"rank.agreement_step must divide 240 and 320, got {self.agreement_step}")
 
     @property
     def uses_agreement(self) -> bool:

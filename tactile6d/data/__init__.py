@@ -1,6 +1,6 @@
 """Where things are and how they are stored: the HDF5 artifacts and their schemas (``hdf5``, ``schemas``),
-where each artifact lives (``layout``), the third-party files and their manifest (``third_party``), and the
-loaders of one object's artifacts (``object_artifacts``).
+where each artifact lives (``layout``), the third-party files and their manifest (``third_party``), and
+every loader of one object's artifacts, with the one cache they share (``object_artifacts``).
 
 Layer 2 of 8: imports only ``core``.
 """

@@ -28,7 +28,13 @@ from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ArtifactError, InputError
 from tactile6d.core.settings import Settings, needs_normals
 from tactile6d.data import layout
-from tactile6d.data.object_artifacts import load_surface_normals, load_surface_points
+from tactile6d.data.object_artifacts import (
+    load_collision_vertices,
+    load_database_angles,
+    load_mesh,
+    load_surface_normals,
+    load_surface_points,
+)
 from tactile6d.estimation import collision, confidence
 from tactile6d.estimation import optimize as optimization
 from tactile6d.estimation import optimize as optimize_step
@@ -231,10 +237,10 @@ class Estimator:
         settings = Settings.from_cfg(cfg)
         own = artifacts_dir if objects_dir is None else objects_dir
         points = load_surface_points(own, object_name)
-        pieces = rank_step.load_pieces(own, object_name)
+        pieces = load_collision_vertices(own, object_name)
         db_angles = encoder = patch_model = None
         if settings.select.method == "ours":
-            db_angles, latent_nc = encode_step.load_database_angles(own, object_name)
+            db_angles, latent_nc = load_database_angles(own, object_name)
             if background is None:
                 background = encode_step.load_background(cfg, data_dir)
             background = check_backgrounds(background)
@@ -244,7 +250,7 @@ class Estimator:
             if settings.select.reads_patches:
                 patch_model = encode_step.load_patch_model(artifacts_dir)
         normals = load_surface_normals(own, object_name) if needs_normals(settings) else None
-        mesh = rank_step.load_mesh(own, object_name) if settings.rank.rescores else None
+        mesh = load_mesh(own, object_name) if settings.rank.rescores else None
         surface = sample_surface(mesh) if settings.rank.refine else None
         return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh,
                    load_confidence_model(artifacts_dir))
@@ -270,6 +276,13 @@ class Estimator:
         3) or None): poses, images, backgrounds and their counts; sensors whose bodies overlap; images that
         are grey or look BGR against their sensor's no-contact image, when the images are read (method
         'ours' or patch contacts) against one; a warning for one sensor."""
+        T, images, _ = self._checked_scene(T_world_sensors, images, backgrounds)
+        return T, images
+
+    def _checked_scene(self, T_world_sensors, images, backgrounds) -> tuple[np.ndarray, np.ndarray | None,
+                                                                            np.ndarray | None]:
+        """``check_scene``, also returning the no-contact images per sensor (``backgrounds``): what the
+        steps of one estimate then take as they are, unchecked (``estimate``, ``identifier.Identifier``)."""
         T = check_sensor_poses(T_world_sensors)
         reads_images = self.settings.select.method == "ours" or self.settings.select.reads_patches
         if reads_images or images is not None:
@@ -279,7 +292,7 @@ class Estimator:
             check_images_against_backgrounds(images, per_sensor)
         check_bodies_apart(T)
         warn_if_underdetermined(T.shape[0])
-        return T, images
+        return T, images, per_sensor
 
     def align_light(self, images, backgrounds=None) -> tuple[np.ndarray | None, list[photometric.LightFit] | None]:
         """Checked images (L, 320, 240, 3) -> (the same brought to their no-contact images' light, their fits),
@@ -288,8 +301,11 @@ class Estimator:
         trusted. backgrounds as for ``estimate``."""
         if images is None:
             return None, None
-        aligned, fits = encode_step.align_light(self.settings.select, images,
-                                                self.backgrounds(len(images), backgrounds))
+        return self._aligned(images, self.backgrounds(len(images), backgrounds))
+
+    def _aligned(self, images, per_sensor) -> tuple[np.ndarray | None, list[photometric.LightFit] | None]:
+        """``align_light`` on checked images and no-contact images per sensor."""
+        aligned, fits = encode_step.align_light(self.settings.select, images, per_sensor)
         if fits is not None:
             photometric.warn_about_light(fits, stacklevel=4)
         return aligned, fits
@@ -320,10 +336,14 @@ class Estimator:
         ``backgrounds`` as for ``encode``, else the estimator's own)."""
         T = check_sensor_poses(T_world_sensors)
         if not self.settings.select.reads_patches:
+            return self._read_contacts(T, None, None)
+        return self._read_contacts(T, check_images(images, T.shape[0]), self.backgrounds(T.shape[0], backgrounds))
+
+    def _read_contacts(self, T: np.ndarray, images: np.ndarray | None, per_sensor: np.ndarray | None) -> Contacts:
+        """``contacts`` from checked inputs: sensor poses, images and no-contact images per sensor."""
+        if not self.settings.select.reads_patches:
             return encode_step.read_contacts(self.settings.select, T)
-        images = check_images(images, T.shape[0])
-        return encode_step.read_contacts(self.settings.select, T, images, self.backgrounds(T.shape[0], backgrounds),
-                                         self.patch_model)
+        return encode_step.read_contacts(self.settings.select, T, images, per_sensor, self.patch_model)
 
     def select(self, contacts: Contacts, angles: np.ndarray | None = None) -> Selection:
         """Candidate tuples for the sensors' contacts (``contacts``), given the images' angles (L,)."""
@@ -340,9 +360,14 @@ class Estimator:
         """The top-k distinct poses of (P, 4, 4) hypotheses with losses (P,), rounded first to the form
         the optimize stage stores (``compact_hypotheses``), so that online and offline rank alike.
         contacts: as ``contacts`` returned (default: the sensors' landmarks)."""
+        return self._rank(check_sensor_poses(T_world_sensors), poses, losses, contacts)
+
+    def _rank(self, T: np.ndarray, poses: np.ndarray, losses: np.ndarray,
+              contacts: Contacts | None) -> rank_step.RankedPoses:
+        """``rank`` for checked sensor poses."""
         poses, losses = expand_hypotheses(**compact_hypotheses(poses, losses))
-        return rank_step.rank(self.penetration_model, check_sensor_poses(T_world_sensors), poses, losses,
-                              self.settings.rank, self.surface, contacts, self.mesh, sensors=self.settings.sensors)
+        return rank_step.rank(self.penetration_model, T, poses, losses, self.settings.rank, self.surface, contacts,
+                              self.mesh, sensors=self.settings.sensors)
 
     def estimate(self, T_world_sensors, images=None, backgrounds=None) -> Estimate:
         """The ranked poses for sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB.
@@ -356,14 +381,19 @@ class Estimator:
         and only then read.
         """
         start = time.perf_counter()
-        T, images = self.check_scene(T_world_sensors, images, backgrounds)
-        ours = self.settings.select.method == "ours"
+        T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)  # the one check
         t0 = time.perf_counter()
-        images, light = self.align_light(images, backgrounds)
-        contacts = self.contacts(T, images, backgrounds)
-        angles = self.encode(images, contacts, T, backgrounds) if ours else None
+        images, light = (None, None) if images is None else self._aligned(images, per_sensor)
+        contacts = self._read_contacts(T, images, per_sensor)
+        angles = None
+        if self.settings.select.method == "ours":
+            if self.encoder is None:
+                raise InputError("this estimator has no image encoder (built for the baseline)")
+            # A call's own no-contact images go to the encoder too; without, it reads against its own.
+            angles = encode_step.read_angles(self.encoder, self.settings.select, images, contacts, T, per_sensor,
+                                             None if backgrounds is None else per_sensor)
         encode_seconds = time.perf_counter() - t0
-        estimate = self.estimate_encoded(T, contacts, angles)
+        estimate = self._estimate_checked(T, contacts, angles)
         steps = {k: estimate.seconds[k] for k in STEPS[1:]}
         estimate.seconds.clear()
         estimate.seconds.update(encode=encode_seconds, **steps, total=time.perf_counter() - start)
@@ -374,8 +404,11 @@ class Estimator:
         returns) and the images' latent angles (L,) rad (``encode``; None for the baseline). Runs select,
         optimize and rank, then the confidence (with a confidence model); ``seconds`` has those steps and
         their total (the confidence counted in rank's)."""
+        return self._estimate_checked(check_sensor_poses(T_world_sensors), contacts, angles)
+
+    def _estimate_checked(self, T: np.ndarray, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
+        """``estimate_encoded`` for checked sensor poses."""
         start = time.perf_counter()
-        T = check_sensor_poses(T_world_sensors)
         seconds = {}
         t0 = time.perf_counter()
         chosen = self.select(contacts, angles)
@@ -386,7 +419,7 @@ class Estimator:
         seconds["optimize"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        ranked = self.rank(T, hypotheses.poses, hypotheses.losses, contacts)
+        ranked = self._rank(T, hypotheses.poses, hypotheses.losses, contacts)
         probability = distinct = None
         if self.confidence_model is not None and len(ranked.poses) > 0:
             probability, distinct = confidence.assess(self.confidence_model, self.spread_points,

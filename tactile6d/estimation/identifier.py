@@ -255,20 +255,24 @@ class Identifier:
         """Read the scene's images once: contacts and latents (module docstring, step 1), each image against
         its sensor's no-contact image (backgrounds as for ``Estimator.estimate``; None: the library's own),
         after the checks of ``Estimator.check_scene`` and the light's alignment (``Estimator.align_light``)."""
+        return self._encode(T_world_sensors, images, backgrounds)[1]
+
+    def _encode(self, T_world_sensors, images, backgrounds) -> tuple[np.ndarray, SceneEncoding]:
+        """``encode``, also returning the checked sensor poses (L, 4, 4): the scene's one check."""
         first = self.full[self.names[0]]
-        T, images = first.check_scene(T_world_sensors, images, backgrounds)
-        images, _ = first.align_light(images, backgrounds)
-        contacts = first.contacts(T, images, backgrounds)
+        T, images, per_sensor = first._checked_scene(T_world_sensors, images, backgrounds)
+        images, _ = (None, None) if images is None else first._aligned(images, per_sensor)
+        contacts = first._read_contacts(T, images, per_sensor)
         if self.settings.select.method != "ours":
-            return SceneEncoding(contacts, None)
-        per_sensor = first.backgrounds(T.shape[0], backgrounds)
+            return T, SceneEncoding(contacts, None)
         seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, per_sensor)
         # A call's own backgrounds go to the encoder; without, it reads against its own (as custom encoders do).
         latents = first.encoder.latents(seen) if backgrounds is None else first.encoder.latents(seen, per_sensor)
-        return SceneEncoding(contacts, latents)
+        return T, SceneEncoding(contacts, latents)
 
-    def candidate(self, name: str, T_world_sensors, encoding: SceneEncoding) -> Candidate:
-        """One object's screened estimate and features for an encoded scene."""
+    def candidate(self, name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:
+        """One object's screened estimate and features for an encoded scene, its sensor poses (L, 4, 4) as
+        ``check_sensor_poses`` returned them (``screen`` checks them once for every object)."""
         est = self.screened[name]
         try:
             estimate = estimate_encoded(est, T_world_sensors, encoding)
@@ -276,11 +280,11 @@ class Identifier:
             return Candidate(name, np.full(len(identity_model.FEATURES), np.nan), None, str(exc))
         return Candidate(name, self.features(est, T_world_sensors, estimate), estimate)
 
-    def features(self, est: Estimator, T_world_sensors, estimate: Estimate) -> np.ndarray:
-        """(F,) features of an estimate's best pose (``identity_model.FEATURES``)."""
+    def features(self, est: Estimator, T_world_sensors: np.ndarray, estimate: Estimate) -> np.ndarray:
+        """(F,) features of an estimate's best pose (``identity_model.FEATURES``); sensor poses checked (L, 4, 4)."""
         agreement = 0.0
         if est.mesh is not None and estimate.contacts.observed:
-            agreement = float(rank_step.agreement_cost(est.mesh, estimate.best[None], check_sensor_poses(T_world_sensors),
+            agreement = float(rank_step.agreement_cost(est.mesh, estimate.best[None], T_world_sensors,
                                                        estimate.contacts, est.settings.rank)[0])
         return np.array([1e3 * estimate.losses[0], 1e3 * estimate.penetrations[0].max(), agreement])
 
@@ -288,8 +292,12 @@ class Identifier:
         """Every object's screened candidate, in library order: in this process, or through the executor
         of ``spread`` (identify.workers > 1 or a Dask cluster's ``executor.address``; the same results,
         see the tests)."""
+        return self._screen(check_sensor_poses(T_world_sensors), encoding)
+
+    def _screen(self, T: np.ndarray, encoding: SceneEncoding) -> list[Candidate]:
+        """``screen`` for checked sensor poses."""
         found: list = [None] * len(self.names)
-        for i, candidate in self._screened(check_sensor_poses(T_world_sensors), encoding):
+        for i, candidate in self._screened(T, encoding):
             found[i] = candidate
         return found
 
@@ -319,8 +327,8 @@ class Identifier:
 
     def candidates(self, T_world_sensors, images=None, backgrounds=None) -> tuple[list[Candidate], SceneEncoding]:
         """Every object's screened candidate (steps 1-2), in library order, and the scene's encoding."""
-        encoding = self.encode(T_world_sensors, images, backgrounds)
-        return self.screen(T_world_sensors, encoding), encoding
+        T, encoding = self._encode(T_world_sensors, images, backgrounds)
+        return self._screen(T, encoding), encoding
 
     def identify(self, T_world_sensors, images=None, backgrounds=None) -> Identification:
         """The library's objects ranked by calibrated probability for sensors at T_world_sensors (L, 4, 4)
@@ -332,8 +340,7 @@ class Identifier:
                              "`dvc repro calibrate_identify`)")
         start = time.perf_counter()
         t0 = time.perf_counter()
-        T = check_sensor_poses(T_world_sensors)
-        encoding = self.encode(T, images, backgrounds)
+        T, encoding = self._encode(T_world_sensors, images, backgrounds)
         seconds = {"encode": time.perf_counter() - t0}
         t0 = time.perf_counter()
         found, guess, guess_seconds = self._screen_and_guess(T, encoding)
@@ -377,7 +384,7 @@ class Identifier:
         cost at most its own time (docs/identity_model.md).
         """
         if self._executor is None or not self.refine_best:
-            return self.screen(T_world_sensors, encoding), None, 0.0
+            return self._screen(T_world_sensors, encoding), None, 0.0
         found: list[Candidate | None] = [None] * len(self.names)
         left = len(self.names)
         guess, seconds = None, 0.0
@@ -402,10 +409,11 @@ class Identifier:
         return scored[int(np.argmin(scores))][0]
 
 
-def estimate_encoded(est: Estimator, T_world_sensors, encoding: SceneEncoding) -> Estimate:
-    """``est``'s estimate from a scene's shared encoding (its own angles from the shared latents)."""
+def estimate_encoded(est: Estimator, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Estimate:
+    """``est``'s estimate from a scene's shared encoding (its own angles from the shared latents), for checked
+    sensor poses (L, 4, 4)."""
     angles = None if encoding.latents is None else np.asarray(est.encoder.angles(encoding.latents), np.float64)
-    return est.estimate_encoded(T_world_sensors, encoding.contacts, angles)
+    return est._estimate_checked(T_world_sensors, encoding.contacts, angles)  # the identifier checked the poses
 
 
 @dataclass(frozen=True)

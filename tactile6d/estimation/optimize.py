@@ -51,11 +51,10 @@ Both return ``PoseHypotheses``: poses (P, 4, 4) float64, losses (P,) m, tuple_in
 norm, so each step moves t by up to gain_t (1 cm), and even with exact correspondences and a start near
 the answer gd ends in a limit cycle, in float32 and float64 alike.
 
-The step (what the estimator and the stage call): step 3, optimize: pose hypotheses for the selected tuples.
-
-Each tuple gets one random rotation and one or more starting translations, refined so that the tuple's
-database points land on the sensors' contact points (``tactile6d.estimation.optimize``: the paper's gradient
-descent, solver ``gd``, or a closed-form + IRLS solver, ``fast``).
+``optimize`` is step 3 of an estimate, as the estimator and the optimize stage call it: each selected tuple
+gets one random rotation and one or more starting translations, refined so that the tuple's database
+points land on the sensors' contact points (the paper's gradient descent, solver ``gd``, or the
+closed-form + IRLS solver, ``fast``).
 """
 
 from __future__ import annotations

@@ -11,14 +11,15 @@ bounds is taken at a time: a pose whose bound came from the loss gets the first 
 bound function applied, one with the first bound gets the second, and so on; one with all bounds
 gets its exact depths. This stops as soon as no unscored pose's bound is below the k-th best distinct
 score so far: no unscored pose can then beat it, nor (coming later in score order) hide one of the top
-k as its duplicate. The result is the same as scoring every pose (``rank_poses_brute_force``, checked
-in the tests), provided every bound is a true lower bound. A pose's depths are the depth function's,
-raised to the bounds already computed for it (so the function may leave the bounds out, as
-``collision.poses_to_fcl_depths`` does). Ties in score are broken by input position.
+k as its duplicate. The result is the same as scoring every pose (checked against a brute-force
+ranking in tests/test_collision.py), provided every bound is a true lower bound. A pose's depths are
+the depth function's, raised to the bounds already computed for it (so the function may leave the
+bounds out, as ``collision.poses_to_fcl_depths`` does). Ties in score are broken by input position.
 
-The step (what the estimator and the stage call): step 4, rank: the best distinct poses by loss + deepest sensor penetration, optionally re-scored by
-surface refinement and by render-and-compare, with what it loads (the object's convex collision pieces
-and, for the re-scoring, its mesh and surface samples).
+``rank`` is step 4 of an estimate, as the estimator and the rank stage call it: the best distinct poses by
+loss + deepest sensor penetration, optionally re-scored by surface refinement and by render-and-compare.
+What it needs of the object (its convex collision pieces and, for the re-scoring, its mesh and surface
+samples) is loaded by ``data.object_artifacts``.
 """
 
 from __future__ import annotations
@@ -26,22 +27,16 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import rotation_angle
 from tactile6d.core.settings import RankSettings, SensorSettings
-from tactile6d.data import layout
-from tactile6d.data.hdf5 import read_artifact
-from tactile6d.data.object_artifacts import require
 from tactile6d.estimation import collision
 from tactile6d.estimation import refine as refinement
 from tactile6d.estimation import render_and_compare
 from tactile6d.perception.contacts import Contacts, sensors_to_landmark_contacts
-from tactile6d.sim.meshes import unpack_pieces
 
 
 @dataclass(frozen=True)
@@ -172,24 +167,6 @@ def rank_poses(
     )
 
 
-def rank_poses_brute_force(
-    poses: np.ndarray,
-    losses: np.ndarray,
-    penetrations: Callable[[np.ndarray], np.ndarray],
-    top_k: int,
-    tol_translation: float,
-    tol_rotation: float,
-    allowance: float = 0.0,
-) -> RankedPoses:
-    """Reference for ``rank_poses``: score every pose, then de-duplicate and take the top k."""
-    poses = np.asarray(poses, dtype=np.float64)
-    losses = np.asarray(losses, dtype=np.float64)
-    depths = np.asarray(penetrations(poses), dtype=np.float64)
-    scores = losses + penetration_cost(depths, allowance)
-    kept = distinct_in_order(poses, np.lexsort((np.arange(len(scores)), scores)), tol_translation, tol_rotation, top_k)
-    return RankedPoses(poses[kept], scores[kept], losses[kept], depths[kept], np.asarray(kept, dtype=np.int64), len(poses))
-
-
 def rank(
     model: collision.PenetrationModel,
     T_world_sensors: np.ndarray,
@@ -252,8 +229,8 @@ def rank(
     scored_depths, correction_cost = depths, 0.0
     seen = None  # (P, L, 4, 4) the object as each corrected sensor sees it, when the sensors are corrected
     if settings.refine:
-        s, n = contacts.points, contacts.normals
-        w, offset = float(settings.refine_normal_weight), contacts.offsets(settings.refine_offset)
+        s, w = contacts.points, float(settings.refine_normal_weight)
+        fit = refinement.SurfaceFit(surface, s, contacts.normals, w, contacts.offsets(settings.refine_offset))
         extra, owners = contacts.patch_points(T_world_sensors, int(settings.refine_patch_points))
         # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
         per_sensor = np.bincount(owners, minlength=len(s))[owners]
@@ -261,13 +238,13 @@ def rank(
         if not sensors.exact:
             sigma_contact, sigma_angle = sensors.correction_sigmas
             candidates, seen = refinement.refine_poses_and_sensors(
-                surface, candidates, s, n, sigma_contact, sigma_angle, n_iterations=int(settings.refine_iterations),
-                normal_weight=w, offset=offset, patch_points=extra, patch_weights=extra_w, patch_owners=owners)
+                fit, candidates, sigma_contact, sigma_angle, n_iterations=int(settings.refine_iterations),
+                patch_points=extra, patch_weights=extra_w, patch_owners=owners)
             correction_cost = refinement.sensor_corrections_cost(candidates, seen, s, sigma_contact, sigma_angle)
         else:
-            candidates = refinement.refine_poses(surface, candidates, s, n, int(settings.refine_iterations), w,
-                                                 offset, patch_points=extra, patch_weights=extra_w)
-        distance, angle = refinement.surface_losses(surface, candidates if seen is None else seen, s, n, w, offset)
+            candidates = refinement.refine_poses(fit, candidates, int(settings.refine_iterations),
+                                                 patch_points=extra, patch_weights=extra_w)
+        distance, angle = refinement.surface_losses(fit, candidates if seen is None else seen)
         new_losses = distance + w * angle
         # Reported: the penetrations through the sensor poses as given; scored: through the corrected ones.
         depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
@@ -282,8 +259,7 @@ def rank(
         candidates, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
         float(np.radians(settings.dedup_rotation)), int(settings.top_k),
     )
-    return RankedPoses(candidates[kept], scores[kept], new_losses[kept], depths[kept], first.index[kept],
-                               n_scored)
+    return RankedPoses(candidates[kept], scores[kept], new_losses[kept], depths[kept], first.index[kept], n_scored)
 
 
 def seen_penetrations(model: collision.PenetrationModel, seen: np.ndarray, T_world_sensors: np.ndarray) -> np.ndarray:
@@ -316,17 +292,3 @@ def agreement_cost(mesh, poses: np.ndarray, T_world_sensors: np.ndarray, contact
         free_area_weight=float(settings.agreement_free_area_weight),
         free_depth_weight=float(settings.agreement_free_depth_weight),
     )
-
-
-def load_pieces(artifacts_dir: str | Path, name: str) -> collision.ConvexPieces:
-    """The object's convex collision pieces (stage prepare_object)."""
-    path = require(layout.object_file(artifacts_dir, name), "prepare_object", name)
-    return collision.vertices_to_pieces([v for v, _ in unpack_pieces(read_artifact(path, "object").data)])
-
-
-def load_mesh(artifacts_dir: str | Path, name: str) -> trimesh.Trimesh:
-    """The object's clean mesh (stage prepare_object), object frame: what render-and-compare ray-casts and
-    ``refine`` samples (``surface_sampling.sample_surface``)."""
-    path = require(layout.object_file(artifacts_dir, name), "prepare_object", name)
-    art = read_artifact(path, "object")
-    return trimesh.Trimesh(np.asarray(art["vertices"]), np.asarray(art["faces"]), process=False)

@@ -41,6 +41,8 @@ Units: metres, radians. Poses are 4x4 float64 ``T_world_object``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from tactile6d.core.geometry import make_pose, rotmat_to_rotvec, rotvec_to_rotmat, skew
@@ -64,26 +66,44 @@ _ROBUST_ANGLE = np.radians(10.0)
 FIT_NOISE = 0.0005
 
 
-def _match(surface, q: np.ndarray, u: np.ndarray, normal_weight: float, k: int):
-    """q, u (..., 3) object-frame contact points and normals -> matched sample points, normals (..., 3)."""
-    shape = q.shape
-    flat_q = q.reshape(-1, 3)
-    k = int(min(k, len(surface.points)))
-    _, idx = surface.tree.query(flat_q, k=k)
-    idx = np.asarray(idx).reshape(len(flat_q), k)
-    c, m = surface.points[idx], surface.normals[idx]  # (n, k, 3)
-    cost = np.sum((flat_q[:, None] - c) ** 2, axis=-1) + normal_weight**2 * np.sum((u.reshape(-1, 3)[:, None] - m) ** 2, axis=-1)
-    best = np.argmin(cost, axis=1)
-    rows = np.arange(len(flat_q))
-    return c[rows, best].reshape(shape), m[rows, best].reshape(shape)
+@dataclass(frozen=True)
+class SurfaceFit:
+    """What the refinement fits and scores: the sensors' contacts against the object's surface.
 
+    surface: an object with ``points`` (S, 3), unit ``normals`` (S, 3) and a cKDTree ``tree`` over the
+    points, in the object frame (``surface_sampling.SurfaceSamples``); points (L, 3) the sensors' contact
+    points and normals (L, 3) their outward normals, world frame (stored as float64, normals made unit);
+    normal_weight in m/rad (0: points only); offset (m) how far outside the surface the contact points
+    should sit (a number, or (L,) one per sensor); k surface samples considered per match.
+    """
 
-def _as_arrays(poses, sensor_points, sensor_normals) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """-> poses (P, 4, 4) as a float64 copy, sensor points (L, 3) and unit sensor normals (L, 3), float64."""
-    T = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
-    s = np.asarray(sensor_points, dtype=np.float64).reshape(-1, 3)
-    n = np.asarray(sensor_normals, dtype=np.float64).reshape(-1, 3)
-    return T, s, n / np.linalg.norm(n, axis=1, keepdims=True)
+    surface: object
+    points: np.ndarray
+    normals: np.ndarray
+    normal_weight: float = 0.01
+    offset: float | np.ndarray = 0.0
+    k: int = 32
+
+    def __post_init__(self) -> None:
+        points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
+        normals = np.asarray(self.normals, dtype=np.float64).reshape(-1, 3)
+        object.__setattr__(self, "points", points)
+        object.__setattr__(self, "normals", normals / np.linalg.norm(normals, axis=1, keepdims=True))
+        object.__setattr__(self, "normal_weight", float(self.normal_weight))
+
+    def match(self, q: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q, u (..., 3) object-frame contact points and normals -> matched sample points, normals (..., 3):
+        among the ``k`` samples nearest each point, the one minimising ||q - c||^2 + normal_weight^2 ||u - m||^2."""
+        shape, flat_q, points, normals = q.shape, q.reshape(-1, 3), self.surface.points, self.surface.normals
+        k = int(min(self.k, len(points)))
+        _, idx = self.surface.tree.query(flat_q, k=k)
+        idx = np.asarray(idx).reshape(len(flat_q), k)
+        c, m = points[idx], normals[idx]  # (n, k, 3)
+        cost = (np.sum((flat_q[:, None] - c) ** 2, axis=-1)
+                + self.normal_weight**2 * np.sum((u.reshape(-1, 3)[:, None] - m) ** 2, axis=-1))
+        best = np.argmin(cost, axis=1)
+        rows = np.arange(len(flat_q))
+        return c[rows, best].reshape(shape), m[rows, best].reshape(shape)
 
 
 def _to_object(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -113,35 +133,40 @@ def _point_to_plane(q: np.ndarray, c: np.ndarray, m: np.ndarray, offset, weight)
     return np.einsum("pl,pla,plb->pab", rho, J, J), np.einsum("pl,pla,pl->pa", rho, J, r)
 
 
+def _normal_rows(u: np.ndarray, m: np.ndarray, w: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The normal rows of contact normals u (P, L, 3) matched to surface normals m: r = w (u - m) (P, L, 3),
+    dr/domega = w [u]x (P, L, 3, 3) (u' = u + u x omega; dr/dv = 0), and their robust (Cauchy) weights (P, L)."""
+    n_poses, n_sensors = u.shape[:2]
+    J = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
+    return w * (u - m), J, 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+
+
+def _clip_step(step: np.ndarray) -> np.ndarray:
+    """Steps (..., 6) (translation, rotation) with each part clipped to ``_MAX_STEP_T`` m, ``_MAX_STEP_R`` rad."""
+    for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
+        norm = np.linalg.norm(step[..., part], axis=-1, keepdims=True)
+        step[..., part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+    return step
+
+
 def refine_poses(
-    surface,
+    fit: SurfaceFit,
     poses: np.ndarray,
-    sensor_points: np.ndarray,
-    sensor_normals: np.ndarray,
     n_iterations: int = 8,
-    normal_weight: float = 0.01,
-    offset: float = 0.0,
-    k: int = 32,
     patch_points: np.ndarray | None = None,
     patch_weights: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Refine poses (P, 4, 4) so the sensors touch the surface (module docstring) -> (P, 4, 4).
-
-    surface: an object with ``points`` (S, 3), unit ``normals`` (S, 3) and a cKDTree ``tree`` over the
-    points, in the object frame (``surface_sampling.SurfaceSamples``); sensor_points (L, 3), sensor_normals
-    (L, 3) outward unit normals, world frame; normal_weight in m/rad (0: points only); offset (m) how
-    far outside the surface the contact points should sit (a number, or (L,) one per sensor); k samples
-    considered per match.
+    """Refine poses (P, 4, 4) so the sensors of ``fit`` touch its surface (module docstring) -> (P, 4, 4).
 
     patch_points (M, 3), world frame, with patch_weights (M,): further points known to lie on the
     surface (the pressed gel of the observed contact patches, ``Contacts.patch_points``), each fitted
     point-to-plane to its nearest surface sample with residual weight ``patch_weights``.
     """
-    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
-    n_poses, n_sensors = T.shape[0], s.shape[0]
+    T, s, n, surface = np.array(poses, dtype=np.float64).reshape(-1, 4, 4), fit.points, fit.normals, fit.surface
+    n_poses = T.shape[0]
     if n_poses == 0:
         return T
-    w = float(normal_weight)
+    w = fit.normal_weight
     prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
     moved = np.zeros((n_poses, 6))  # accumulated steps (local frame, first order)
     has_patch = patch_points is not None and len(patch_points) > 0
@@ -150,8 +175,8 @@ def refine_poses(
         extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
     for _ in range(int(n_iterations)):
         q, u = _local(T, s, n)
-        c, m = _match(surface, q, u, w, k)
-        JtJ, Jtr = _point_to_plane(q, c, m, offset, 1.0)
+        c, m = fit.match(q, u)
+        JtJ, Jtr = _point_to_plane(q, c, m, fit.offset, 1.0)
         if has_patch:
             qp = _to_object(T, extra)  # (P, M, 3); each matched to its nearest sample
             _, idx = surface.tree.query(qp.reshape(-1, 3))
@@ -160,56 +185,35 @@ def refine_poses(
             JtJ += patch_JtJ
             Jtr += patch_Jtr
         if w > 0:
-            # Normal rows: r = w (u - m), dr/domega = w [u]x (u' = u + u x omega), dr/dv = 0.
-            r_n = w * (u - m)  # (P, L, 3)
-            J_n = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
-            rho_n = 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+            r_n, J_n, rho_n = _normal_rows(u, m, w)
             JtJ[:, 3:, 3:] += np.einsum("pl,plia,plib->pab", rho_n, J_n, J_n)
             Jtr[:, 3:] += np.einsum("pl,plia,pli->pa", rho_n, J_n, r_n)
-        step = -np.linalg.solve(JtJ + prior, (Jtr + moved @ prior)[..., None])[..., 0]
-        for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
-            norm = np.linalg.norm(step[:, part], axis=1, keepdims=True)
-            step[:, part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+        step = _clip_step(-np.linalg.solve(JtJ + prior, (Jtr + moved @ prior)[..., None])[..., 0])
         moved += step
         T = T @ make_pose(rotvec_to_rotmat(step[:, 3:]), step[:, :3])
     return T
 
 
-def surface_losses(
-    surface,
-    poses: np.ndarray,
-    sensor_points: np.ndarray,
-    sensor_normals: np.ndarray,
-    normal_weight: float = 0.01,
-    offset: float = 0.0,
-    k: int = 32,
-) -> tuple[np.ndarray, np.ndarray]:
-    """How well each pose (P, 4, 4) makes the sensors touch the surface -> (distance (P,) m, angle (P,) rad):
+def surface_losses(fit: SurfaceFit, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How well each pose (P, 4, 4) makes the sensors of ``fit`` touch its surface -> (distance (P,) m, angle (P,) rad):
     the mean over sensors of |point-to-plane residual| and of the angle between the contact normal and
     the matched surface normal (matching as in ``refine_poses``). Poses (P, L, 4, 4): the object as each
     sensor sees it (``refine_poses_and_sensors``)."""
     poses = np.asarray(poses, dtype=np.float64)
-    T, s, n = _as_arrays(poses if poses.ndim == 3 else poses[:, 0], sensor_points, sensor_normals)
-    T = T if poses.ndim == 3 else poses
-    q, u = _local(T, s, n)
-    c, m = _match(surface, q, u, float(normal_weight), k)
-    distance = np.abs(np.sum(m * (q - c), axis=-1) - offset).mean(axis=1)
+    q, u = _local(poses if poses.ndim == 4 else poses.reshape(-1, 4, 4), fit.points, fit.normals)
+    c, m = fit.match(q, u)
+    distance = np.abs(np.sum(m * (q - c), axis=-1) - fit.offset).mean(axis=1)
     angle = np.arccos(np.clip(np.sum(u * m, axis=-1), -1.0, 1.0)).mean(axis=1)
     return distance, angle
 
 
 def refine_poses_and_sensors(
-    surface,
+    fit: SurfaceFit,
     poses: np.ndarray,
-    sensor_points: np.ndarray,
-    sensor_normals: np.ndarray,
     sigma_contact: float,
     sigma_angle: float,
     fit_noise: float = FIT_NOISE,
     n_iterations: int = 8,
-    normal_weight: float = 0.01,
-    offset: float = 0.0,
-    k: int = 32,
     patch_points: np.ndarray | None = None,
     patch_weights: np.ndarray | None = None,
     patch_owners: np.ndarray | None = None,
@@ -227,12 +231,12 @@ def refine_poses_and_sensors(
     contacts common to every sensor still do. Other arguments as ``refine_poses``; patch_owners (M,) the
     sensor each patch point belongs to. With sigmas of 0 use ``refine_poses``.
     """
-    T, s, n = _as_arrays(poses, sensor_points, sensor_normals)
+    T, s, n, surface = np.array(poses, dtype=np.float64).reshape(-1, 4, 4), fit.points, fit.normals, fit.surface
     n_poses, n_sensors = T.shape[0], s.shape[0]
     seen = np.repeat(T[:, None], n_sensors, axis=1)
     if n_poses == 0:
         return T, seen
-    w = float(normal_weight)
+    w = fit.normal_weight
     dim = 6 + 6 * n_sensors
     prior = np.diag([_PRIOR_T**2] * 3 + [_PRIOR_R**2] * 3)
     moved = np.zeros((n_poses, 6))
@@ -246,8 +250,8 @@ def refine_poses_and_sensors(
     for _ in range(int(n_iterations)):
         R_seen = seen[..., :3, :3]
         q, u = _local(seen, s, n)  # (P, L, 3), each through its own sensor
-        c, m = _match(surface, q, u, w, k)
-        r = np.sum(m * (q - c), axis=-1) - offset  # (P, L)
+        c, m = fit.match(q, u)
+        r = np.sum(m * (q - c), axis=-1) - fit.offset  # (P, L)
         J = np.concatenate([-m, np.cross(m, q)], axis=-1)  # (P, L, 6)
         rho = 1.0 / (1.0 + (r / _ROBUST_DISTANCE) ** 2)
         B = np.einsum("pl,pla,plb->plab", rho, J, J)  # each sensor's rows' normal equations (P, L, 6, 6)
@@ -264,9 +268,7 @@ def refine_poses_and_sensors(
             B += np.einsum("pm,ml,pma,pmb->plab", rhop, owners, Jp, Jp)
             g += np.einsum("pm,ml,pma,pm->pla", rhop, owners, Jp, rp)
         if w > 0:
-            r_n = w * (u - m)
-            J_n = w * skew(u.reshape(-1, 3)).reshape(n_poses, n_sensors, 3, 3)
-            rho_n = 1.0 / (1.0 + (np.linalg.norm(u - m, axis=-1) / _ROBUST_ANGLE) ** 2)
+            r_n, J_n, rho_n = _normal_rows(u, m, w)
             B[..., 3:, 3:] += np.einsum("pl,plia,plib->plab", rho_n, J_n, J_n)
             g[..., 3:] += np.einsum("pl,plia,pli->pla", rho_n, J_n, r_n)
         # The sensors' priors: G zeta = (a_scale (v - [q]x omega), b_scale omega).
@@ -285,10 +287,7 @@ def refine_poses_and_sensors(
             H[:, block, :6] = B[:, i]
             H[:, block, block] = B[:, i] + sensor_prior[:, i]
             rhs[:, block] = g[:, i] + np.einsum("pab,pb->pa", sensor_prior[:, i], zeta[:, i])
-        step = -np.linalg.solve(H, rhs[..., None])[..., 0].reshape(n_poses, 1 + n_sensors, 6)
-        for part, limit in ((slice(0, 3), _MAX_STEP_T), (slice(3, 6), _MAX_STEP_R)):
-            norm = np.linalg.norm(step[..., part], axis=-1, keepdims=True)
-            step[..., part] *= np.minimum(1.0, limit / np.maximum(norm, 1e-300))
+        step = _clip_step(-np.linalg.solve(H, rhs[..., None])[..., 0].reshape(n_poses, 1 + n_sensors, 6))
         moved += step[:, 0]
         zeta += step[:, 1:]
         T = T @ make_pose(rotvec_to_rotmat(step[:, 0, 3:]), step[:, 0, :3])

@@ -49,9 +49,7 @@ The baseline is the same with Omega_i = all M points: ``all_points_omegas``. Tim
 
 Units: metres for points and thresholds, radians for latent angles.
 
-The step (what the estimator and the stage call): step 2, select: the candidate tuples of database points for the sensors.
-
-Tactile selection keeps, per sensor, the database points whose latent angle is within ``delta_h`` of
+``select`` is step 2 of an estimate, as the estimator and the select stage call it: tactile selection keeps, per sensor, the database points whose latent angle is within ``delta_h`` of
 the image's (``select.angles_to_omegas``); distance selection keeps the tuples of those points whose
 pairwise distances match the sensors' (``select.select_tuples``). Nothing matching either is a
 ``NoMatch`` outcome, not an input error.

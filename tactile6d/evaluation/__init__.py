@@ -1,7 +1,8 @@
-"""How good the estimates are: scoring a run against the truth and the tables (``scoring``), contact accuracy
-(``contact_accuracy``), identification accuracy (``identification_accuracy``), the sensor-count study
-(``sensor_subsets``), the ablation's variants (``ablation_variants``), the simulator's fidelity to TACTO
-(``fidelity``), the autoencoder's latent gaps (``latent_gaps``) and the report's figures (``plots``).
+"""How good the estimates are: every reported figure's key, label and target (``metric_table``), scoring a
+run against the truth and the tables (``scoring``), contact accuracy (``contact_accuracy``), identification
+accuracy (``identification_accuracy``), the sensor-count study (``sensor_subsets``), the ablation's variants
+(``ablation_variants``), the simulator's fidelity to TACTO (``fidelity``), the autoencoder's latent gaps
+(``latent_gaps``) and the report's figures (``plots``).
 
 Layer 7 of 8: imports every layer below it.
 """

@@ -87,19 +87,11 @@ def contact_accuracy(
     }
 
 
-def contact_accuracy_single(
-    surface: SurfaceSamples | trimesh.Trimesh,
-    T_world_object_est: np.ndarray,
-    T_world_object_gt: np.ndarray,
-    T_world_sensors: np.ndarray,
-    tolerance: float = CONTACT_TOLERANCE,
-    rule: ContactRule = ContactRule(),
-) -> tuple[bool, dict[str, np.ndarray]]:
-    """One estimate (4, 4): ``(correct, details)`` with the per-sensor (L,) arrays of ``contact_accuracy``
-    and the type names ``type_est_names`` / ``type_true_names``."""
-    result = contact_accuracy(surface, T_world_object_est, T_world_object_gt, T_world_sensors, tolerance, rule)
-    details = {key: value[0] for key, value in result.items() if key not in ("correct", "type_true")}
+def accuracy_to_details(result: dict[str, np.ndarray], k: int = 0) -> tuple[bool, dict[str, np.ndarray]]:
+    """One estimate of a ``contact_accuracy`` result: ``(correct, details)`` with its per-sensor (L,) arrays,
+    ``type_true`` and the type names ``type_est_names`` / ``type_true_names``."""
+    details = {key: value[k] for key, value in result.items() if key not in ("correct", "type_true")}
     details["type_true"] = result["type_true"]
     details["type_est_names"] = contact_type_names(details["type_est"])
     details["type_true_names"] = contact_type_names(result["type_true"])
-    return bool(result["correct"][0]), details
+    return bool(result["correct"][k]), details

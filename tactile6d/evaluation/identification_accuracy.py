@@ -10,9 +10,8 @@ from tqdm import tqdm
 from tactile6d.estimation import identity_model
 from tactile6d.estimation.identifier import Identifier
 from tactile6d.evaluation import scoring
+from tactile6d.evaluation.metric_table import ERROR_KEYS, HEADLINE_KEYS
 from tactile6d.sim.scenes import scene_backgrounds
-
-POSE_KEYS = ("pos_err_cm_top1", "adi_auc_paper_top1", "adi_auc_rot_top1")
 
 
 def identify_scene_set(identifier: Identifier, scenes: Mapping[str, np.ndarray],
@@ -23,12 +22,12 @@ def identify_scene_set(identifier: Identifier, scenes: Mapping[str, np.ndarray],
     ``top1``, ``top3`` (shares of scenes whose true object came first / in the first three),
     ``top1_by_object``, ``confusion`` (``identity_model.confusion_matrix`` over the library's order),
     ``time_s_median`` and ``time_s_p90`` (seconds per identification), and ``pose_of_correct``: the
-    ``POSE_KEYS`` of ``scoring.summarise_by_object`` over the scenes identified correctly (best
+    ``metric_table.HEADLINE_KEYS`` of ``scoring.summarise_by_object`` over the scenes identified correctly (best
     poses, scored against references: name -> ``scoring.ObjectReference``). A progress bar on stderr.
     """
     objects = identifier.names
     truth, predicted, ranks, seconds, owners = [], [], [], [], []
-    errors = {key: [] for key in ("position", "adi", "adi_rotation", "contact_ok")}
+    errors = {key: [] for key in ERROR_KEYS}
     for s in tqdm(range(len(scenes["names"])), desc=desc, unit="scene"):
         name = str(scenes["objects"][s])
         T_sensors = scenes["T_world_sensors"][s]
@@ -51,7 +50,7 @@ def identify_scene_set(identifier: Identifier, scenes: Mapping[str, np.ndarray],
     pose = {}
     if owners:
         average = scoring.summarise_by_object({k: np.array(v) for k, v in errors.items()}, np.array(owners))
-        pose = {k: v for k, v in average["average"].items() if k in POSE_KEYS}
+        pose = {k: v for k, v in average["average"].items() if k in HEADLINE_KEYS}
     nan = float("nan")
     return {
         "objects": list(objects),

@@ -3,7 +3,7 @@
 The tactile selection keeps a database point for a sensor when their latent angles (to the no-contact
 image, ``autoencoder.latent_angles``) differ by less than ``select.delta_h``; the gap at the true
 contact point says whether the right point can survive it. The ae_quality stage reports it on
-caddeo2023, scripts/angle_gaps.py on any scene set.
+caddeo2023 (docs/autoencoder.md has the study that measured it on the generated sets).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def triplet_gaps(artifacts: str, angles: dict, points: dict, model, norm, backgr
     points: per object name, its database points' latent angles (M,) radians and positions (M, 3)
     metres in the object frame; model, norm: ``autoencoder.load_checkpoint``'s; background: the
     no-contact image (320, 240, 3) uint8; prepare: optional ``(images (L, 320, 240, 3), T_world_sensors
-    (L, 4, 4)) -> images`` applied before encoding (``select.centre_images``, scripts/angle_gaps.py).
+    (L, 4, 4)) -> images`` applied before encoding (as ``select.centre_images`` does).
     Returns (n_sensors,) radians.
     """
     scenes = read_artifact(layout.scenes_file(artifacts, scene_set), "scenes")

@@ -16,25 +16,14 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import trimesh
 
 from tactile6d.core import metrics
-from tactile6d.data import layout
-from tactile6d.data.hdf5 import read_artifact
+from tactile6d.data.object_artifacts import load_mesh, load_metric_points
 from tactile6d.evaluation import contact_accuracy
+from tactile6d.evaluation.metric_table import ERROR_KEYS, SUMMARY_KEYS
 from tactile6d.sim import surface_sampling
 
 TOP_K = 5
-
-# Metric keys of the summaries (percentages 0-100 except where the name says cm or s).
-SUMMARY_KEYS = (
-    "pos_err_cm_top1", "pos_err_cm_top5",
-    "adi_auc_paper_top1", "adi_auc_paper_top5",
-    "adi_auc_std_top1", "adi_auc_std_top5",
-    "adi_auc_rot_top1", "adi_auc_rot_top5",
-    "contact_acc_top1", "contact_acc_top5",
-    "contact_acc_image_top1", "contact_acc_image_top5",
-)
 
 
 @dataclass
@@ -48,9 +37,8 @@ class ObjectReference:
 
 def load_object_reference(artifacts_dir, name: str) -> ObjectReference:
     """The reference of a prepared object (``artifacts/objects/<name>.h5``, stage prepare_object)."""
-    art = read_artifact(layout.object_file(artifacts_dir, name), "object")
-    mesh = trimesh.Trimesh(art["vertices"], art["faces"], process=False)
-    return ObjectReference(art["metric_points"], metrics.model_tree(art["metric_points"]), surface_sampling.sample_surface(mesh))
+    points = load_metric_points(artifacts_dir, name)
+    return ObjectReference(points, metrics.model_tree(points), surface_sampling.sample_surface(load_mesh(artifacts_dir, name)))
 
 
 def scene_errors(
@@ -70,7 +58,7 @@ def scene_errors(
     (k,), NaN where there is no estimate: ``position`` (m), ``adi`` (m), ``adi_rotation`` (m),
     ``contact_ok`` (1.0 / 0.0).
     """
-    out = {key: np.full(k, np.nan) for key in ("position", "adi", "adi_rotation", "contact_ok")}
+    out = {key: np.full(k, np.nan) for key in ERROR_KEYS}
     n = min(int(n_ranked), k)
     if n == 0:
         return out
@@ -106,7 +94,7 @@ def summarise(errors: dict[str, np.ndarray]) -> dict[str, float]:
     (``contact_acc_image_*``) is there when errors hold ``contact_image_ok`` (S, k) (1.0 / 0.0 / NaN),
     and is pooled like ``contact_ok``.
     """
-    pos, adi, rot, ok = (np.asarray(errors[key]) for key in ("position", "adi", "adi_rotation", "contact_ok"))
+    pos, adi, rot, ok = (np.asarray(errors[key]) for key in ERROR_KEYS)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # nanmean of a scene without estimates
         out = {
@@ -147,14 +135,6 @@ def summarise_by_object(errors: dict[str, np.ndarray], objects: np.ndarray) -> d
         if np.isfinite(top1).any():
             per_object["average"]["pos_err_cm_top1_median"] = float(100.0 * np.nanmedian(top1))
     return per_object
-
-
-# The paper's Table I, for the side-by-side tables.
-PAPER_TABLE_I = {
-    "ours": {"pos_err_cm_top1": 2.36, "adi_auc_paper_top1": 70.8, "adi_auc_rot_top1": 81.3, "contact_acc_top1": 87.5,
-             "time_s_median": 35.7},
-    "baseline": {"pos_err_cm_top1": 4.76, "adi_auc_paper_top1": 40.3, "contact_acc_top1": 25.0, "time_s_median": 71.9},
-}
 
 
 def table_markdown(summary: dict[str, dict[str, dict[str, float]]], methods=("ours", "baseline")) -> str:

@@ -24,10 +24,9 @@ from tqdm import tqdm
 from tactile6d.core.errors import NoMatch
 from tactile6d.estimation.estimator import Estimator
 from tactile6d.evaluation import scoring
+from tactile6d.evaluation.metric_table import ERROR_KEYS
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 from tactile6d.sim.scenes import scene_backgrounds
-
-ERROR_KEYS = ("position", "adi", "adi_rotation", "contact_ok")
 
 
 class ScoredEstimate(NamedTuple):
@@ -137,7 +136,7 @@ def evaluate_sensor_count(
     (S, L, 4, 4), ``images`` (S, L, 320, 240, 3), optionally ``backgrounds`` (S, L, 320, 240, 3)); estimators
     and references keyed by object name.
     Returns the average row of ``scoring.summarise_by_object`` (the metric keys of
-    ``scoring.SUMMARY_KEYS``; an empty dict for an empty set) and the wall-clock seconds of each
+    ``metric_table.SUMMARY_KEYS``; an empty dict for an empty set) and the wall-clock seconds of each
     estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate
     that matches nothing (``NoMatch``) counts as a failure, as in evaluate; bad input raises.
     """

@@ -24,20 +24,13 @@ from tactile6d.core.errors import DataError, InputError
 from tactile6d.core.geometry import invert_pose, transform_points
 from tactile6d.core.settings import SelectSettings
 from tactile6d.data import layout
-from tactile6d.data.hdf5 import read_artifact, read_tactile_image
+from tactile6d.data.hdf5 import read_tactile_image
 from tactile6d.data.object_artifacts import require
 from tactile6d.data.third_party import DataStore
 from tactile6d.perception import photometric
 from tactile6d.perception.autoencoder import encode, latent_angles, load_checkpoint
 from tactile6d.perception.contact_patch import PatchModel, centre_contact, image_to_patch, load_model
 from tactile6d.perception.contacts import Contacts, patches_to_contacts, sensors_to_landmark_contacts
-
-
-def load_database_angles(artifacts_dir: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """The database images' latent angles (M,) rad and the no-contact latent (128,) (stage encode_database)."""
-    path = require(layout.latents_file(artifacts_dir, name), "encode_database", name)
-    art = read_artifact(path, "latents")
-    return np.asarray(art["angles"], dtype=np.float64), np.asarray(art["latent_nc"], dtype=np.float32)
 
 
 def load_background(cfg: Mapping, data_dir: str | Path | None = None) -> np.ndarray:

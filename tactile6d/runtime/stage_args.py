@@ -56,18 +56,16 @@ def parse_stage_args(argv: list[str] | None, description: str, per_object: bool 
 
 
 def parse_run_stage_args(argv: list[str] | None, description: str, methods: tuple[str, ...]):
-    """Command line of select_tuples, optimize and rank: ``[--params FILE] --scene-set NAME --method
-    METHOD key=value ...``, METHOD one of ``methods`` (``core.settings.METHODS``). ``--method`` also sets
-    ``select.method`` in the returned config.
-    Returns ``(args, cfg)``.
+    """Command line of select_tuples, optimize and rank: ``parse_stage_args``'s with ``--scene-set NAME
+    --method METHOD``, METHOD one of ``methods`` (``core.settings.METHODS``). ``--method`` also sets
+    ``select.method`` in the returned config. Returns ``(args, cfg)``.
     """
-    parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--params", help="composed params file (DVC passes params.yaml); default: compose conf/")
-    parser.add_argument("--scene-set", required=True, help="scene set: artifacts/scenes/<name>.h5")
-    parser.add_argument("--method", required=True, choices=methods)
-    parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
-    args = parser.parse_args(argv)
-    cfg = load_config(args.overrides, args.params)
+
+    def add_arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--scene-set", required=True, help="scene set: artifacts/scenes/<name>.h5")
+        parser.add_argument("--method", required=True, choices=methods)
+
+    args, cfg = parse_stage_args(argv, description, add_arguments=add_arguments)
     OmegaConf.update(cfg, "select.method", args.method)
     return args, cfg
 

@@ -216,7 +216,8 @@ def _hull(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pack_pieces(pieces: ConvexPieces) -> dict[str, np.ndarray]:
-    """Concatenate convex pieces into flat arrays with offsets (for HDF5)."""
+    """Concatenate convex pieces into flat arrays with offsets (for HDF5; read back by
+    ``data.object_artifacts.load_collision_vertices``)."""
     vertices = np.concatenate([v for v, _ in pieces])
     faces = np.concatenate([f for _, f in pieces])
     return {
@@ -225,15 +226,6 @@ def pack_pieces(pieces: ConvexPieces) -> dict[str, np.ndarray]:
         "collision_vertex_offsets": np.cumsum([0] + [len(v) for v, _ in pieces]),
         "collision_face_offsets": np.cumsum([0] + [len(f) for _, f in pieces]),
     }
-
-
-def unpack_pieces(data: dict[str, np.ndarray]) -> ConvexPieces:
-    """Inverse of ``pack_pieces``."""
-    vo, fo = data["collision_vertex_offsets"], data["collision_face_offsets"]
-    return [
-        (data["collision_vertices"][vo[k]: vo[k + 1]], data["collision_faces"][fo[k]: fo[k + 1]])
-        for k in range(len(vo) - 1)
-    ]
 
 
 _HALF_SPACE_BLOCK = 2**22  # points x faces per half-space test (32 MB of float64)
