@@ -115,7 +115,8 @@ def test_a_sensor_background_from_a_file(capsys, artifacts, scene, tmp_path):
 @pytest.mark.parametrize(
     "change,message",
     [({"--scene": "/nonexistent"}, "scene folder /nonexistent not found"),
-     ({"--object": "prim_sphere"}, "dvc repro sample_surface@prim_sphere"),
+     # a distractor of the identification library: its stages make the whole library at once
+     ({"--object": "prim_sphere"}, "make them with `dvc repro prepare_distractors sample_distractors`"),
      ({"select.method": "nonsense"}, "select.method must be one of ours, baseline"),
      ({"select.no_such_key": "1"}, "bad config override")],
 )
@@ -335,7 +336,7 @@ def test_a_known_object_without_artifacts_stops_a_batch(capsys, artifacts, scene
     code, out, err = run(capsys, "--object", "prim_sphere", "--scene", *map(str, folders),
                          "--artifacts", str(artifacts), *BASELINE)
     assert code == 2 and out == "" and err.count("\n") == 1
-    assert "dvc repro sample_surface@prim_sphere" in err
+    assert "dvc repro prepare_distractors sample_distractors`" in err
 
 
 @pytest.mark.parametrize("word,override", [("select.N=5", True), ("preset=paper", True), ("+rank.x=1", True),

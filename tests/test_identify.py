@@ -277,7 +277,7 @@ def prim_artifacts(tmp_path_factory):
 
 
 def test_the_command_takes_distractors_from_their_own_folder(prim_artifacts):
-    from tactile6d.cli.estimate import KnownObjects
+    from tactile6d.cli.objects import KnownObjects
     from tactile6d.cli.identify import library_of
 
     known = KnownObjects(prim_artifacts, compose_config())
@@ -299,6 +299,29 @@ def touching_sensors(artifacts, name, wanted):
     picks = [int(np.argmin(np.linalg.norm(points - t, axis=1) + 10 * np.linalg.norm(normals - n, axis=1)))
              for t, n in wanted]
     return T_TRUE @ sensor_poses_touching(points[picks], normals[picks], [0.1, 1.0, -2.0], 0.002)
+
+
+def test_a_distractor_is_estimated_by_name(prim_artifacts, tmp_path, capsys):
+    """`tactile6d estimate --object shape_3` reads the distractor's artifacts from their own folder."""
+    import json
+
+    from tactile6d.data import layout
+    from tactile6d.data.hdf5 import write_tactile_image
+
+    surface = layout.distractors_dir(prim_artifacts)
+    wanted = [((0.05, 0.0, 0.0), (1, 0, 0)), ((-0.05, 0.0, 0.0), (-1, 0, 0)), ((0.0, 0.0, 0.05), (0, 0, 1))]
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    (scene / "poses_sensors.txt").write_text(g.poses_to_text(touching_sensors(surface, "shape_3", wanted)))
+    for i in range(3):
+        write_tactile_image(scene / f"Image_heatmap_{i}.png", np.full((320, 240, 3), 128, np.uint8))
+    code = cli_main(["estimate", "--object", "shape_3", "--scene", str(scene), "--artifacts", str(prim_artifacts),
+                     "--json", "select.method=baseline", "select.N=400"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["object"] == "shape_3"
+    assert np.linalg.norm(np.array(result["poses"][0])[:3, 3] - T_TRUE[:3, 3]) < 0.01
 
 
 # Three faces of prim_box, as (point, outward normal) near which the sensors touch.

@@ -1,4 +1,5 @@
-"""The ``tactile6d`` console script: dispatches to ``tactile6d.cli.<module>.main(argv)``, one module per command.
+"""The ``tactile6d`` console script: dispatches to ``tactile6d.cli.<module>.main(argv)``, one module per command;
+``objects`` holds what the commands share: the objects they know by name and where their artifacts live.
 
 Sub-command modules are imported only when used, so ``tactile6d --help`` stays fast and a command's
 heavy dependencies (torch, jax) load only for that command.

@@ -14,8 +14,10 @@ process; each object's artifacts are read once, from ``--artifacts`` (default: t
 The object: ``--object NAME`` for every scene, or ``--object auto``: each scene's object is the name
 of the folder that holds the scene folder, as in the paper's layout
 ``caddeo2023/triplets/<object>/triplet_<k>``. An unknown name is an error listing the known ones: the
-objects with artifacts in the artifacts directory and those of the configured object sets
-(``conf/objects``).
+objects with artifacts in the artifacts directory, those of the configured object sets (``conf/objects``)
+and the identification library's distractors (``identify.distractors``, their artifacts read from
+``<artifacts>/distractors/``; ``tactile6d.cli.objects``). Missing artifacts are one error naming every
+missing file and the ``dvc repro`` targets that make them.
 
 Output, per scene: the best ``T_world_object`` as one ``x y z ax ay az angle`` line, then a short
 summary (scores, confidence, selection, time per step); with several scenes each result is headed by a
@@ -54,10 +56,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d.core.config import CONF_DIR, compose_config
+from tactile6d.cli.objects import KnownObjects
+from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
-from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir
 from tactile6d.estimation import confidence
 from tactile6d.estimation.estimator import Estimate, Estimator
@@ -147,50 +149,6 @@ def collect_scenes(args: argparse.Namespace) -> list[Path]:
     return list(dict.fromkeys(scenes))
 
 
-class KnownObjects:
-    """The object names this command accepts: those with artifacts and those of the configured sets;
-    apart, the identification library's distractors (``identify.distractors``, or with artifacts under
-    ``layout.distractors_dir``)."""
-
-    def __init__(self, artifacts: str | Path, cfg):
-        self.artifacts = Path(artifacts)
-        self.with_artifacts = objects_with_artifacts(self.artifacts)
-        self.configured = configured_objects(cfg)
-        self.distractors_with_artifacts = objects_with_artifacts(layout.distractors_dir(self.artifacts))
-        self.distractors = list(dict.fromkeys([*self.distractors_with_artifacts,
-                                               *(str(n) for n in cfg.identify.distractors)]))
-
-    def __contains__(self, name: str) -> bool:
-        return name in self.with_artifacts or name in self.configured
-
-    def check(self, name: str) -> None:
-        """InputError listing the known objects when ``name`` is not one."""
-        if name not in self:
-            raise InputError(f"unknown object {name!r}; {self.listing()}")
-
-    def listing(self) -> str:
-        have = ", ".join(self.with_artifacts) or "none"
-        others = ", ".join(o for o in self.configured if o not in self.with_artifacts)
-        return (f"objects with artifacts in {self.artifacts}: {have}"
-                + (f"; other configured objects (conf/objects): {others}" if others else ""))
-
-
-def objects_with_artifacts(artifacts: Path) -> list[str]:
-    """Objects with any per-object artifact in ``artifacts``: a missing one is then reported by
-    Estimator.from_artifacts with the dvc command that makes it."""
-    return sorted({p.stem for kind in ("objects", "surfaces", "latents") for p in (artifacts / kind).glob("*.h5")})
-
-
-def configured_objects(cfg) -> list[str]:
-    """The names of every object set in conf/objects (ycb, primitives), and the composed objects.names."""
-    import yaml
-
-    names = [str(n) for n in cfg.objects.names]
-    for path in sorted((CONF_DIR / "objects").glob("*.yaml")):
-        names += [str(n) for n in (yaml.safe_load(path.read_text()) or {}).get("names", [])]
-    return list(dict.fromkeys(names))
-
-
 def object_of(scene: Path, object_arg: str, known: KnownObjects) -> str:
     """The object of one scene: ``--object``'s name, or with ``auto`` the scene's parent folder's name."""
     if object_arg != AUTO:
@@ -205,8 +163,8 @@ def object_of(scene: Path, object_arg: str, known: KnownObjects) -> str:
 class EstimatorCache:
     """One Estimator per object, loaded on first use; a load that failed fails again without retrying."""
 
-    def __init__(self, artifacts: str | Path, cfg, background: np.ndarray | None):
-        self.artifacts, self.cfg, self.background = artifacts, cfg, background
+    def __init__(self, known: KnownObjects, cfg, background: np.ndarray | None):
+        self.known, self.cfg, self.background = known, cfg, background
         self._loaded: dict[str, tuple[Estimator | Tactile6dError, float]] = {}
         self._reported: set[str] = set()
 
@@ -215,7 +173,9 @@ class EstimatorCache:
         if name not in self._loaded:
             t0 = time.perf_counter()
             try:
-                loaded = Estimator.from_artifacts(name, self.artifacts, self.cfg, background=self.background)
+                found = self.known.require_artifacts(name, baseline=self.cfg.select.method != "ours")
+                loaded = Estimator.from_artifacts(name, self.known.artifacts, self.cfg, background=self.background,
+                                                  objects_dir=found.objects_dir)
             except ConfigError:
                 raise  # the same for every object: not worth remembering
             except Tactile6dError as exc:
@@ -411,14 +371,14 @@ def main(argv: list[str]) -> int:
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     known = KnownObjects(artifacts, cfg)
     if args.object != AUTO:
-        known.check(args.object)
+        known.get(args.object)  # an unknown name ends the command before any scene is read
     scenes = collect_scenes(args)
     if args.background == [FROM_SCENES]:
         background, note = backgrounds_from_scenes(scenes)
         write(note, sys.stderr)
     else:
         background = read_background_images(args.background) if args.background else None
-    cache = EstimatorCache(artifacts, cfg, background)
+    cache = EstimatorCache(known, cfg, background)
 
     if len(scenes) == 1 and args.scenes_root is None:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).

@@ -25,7 +25,8 @@ import sys
 import warnings
 from pathlib import Path
 
-from tactile6d.cli.estimate import KnownObjects, is_override, scene_backgrounds, split_overrides, warnings_to_lines
+from tactile6d.cli.estimate import is_override, scene_backgrounds, split_overrides, warnings_to_lines
+from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import pose_to_line
@@ -82,11 +83,8 @@ def library_of(names: list[str] | None, known: KnownObjects) -> tuple[list[str],
         if not objects and not distractors:
             raise InputError(f"no objects to identify among: {known.listing()}")
         return list(objects), list(distractors)
-    distractors = [n for n in names if n not in known.with_artifacts and n in known.distractors]
-    for name in names:
-        if name not in distractors:
-            known.check(name)
-    return [n for n in names if n not in distractors], distractors
+    found = [known.get(name) for name in names]  # InputError for an unknown name
+    return [o.name for o in found if not o.distractor], [o.name for o in found if o.distractor]
 
 
 def main(argv: list[str]) -> int:
