@@ -22,7 +22,6 @@ The mesh returned is in metres, in the file's frame moved by ``offset`` (metres,
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +29,7 @@ import numpy as np
 import trimesh
 
 from tactile6d.core.errors import MeshError
+from tactile6d.sim.meshes import load_mesh_file
 
 # Length of one file unit in metres.
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
@@ -56,23 +56,6 @@ class ImportReport:
         return dict(vars(self))
 
 
-def read_mesh_file(path: str | Path) -> trimesh.Trimesh:
-    """The triangles of a mesh file (every part of a scene concatenated), file units, nothing repaired."""
-    path = Path(path)
-    if not path.is_file():
-        raise MeshError(f"mesh file {path} not found")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # missing material and texture files do not matter here
-            loaded = trimesh.load(path, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise MeshError(f"{path} is not a mesh file trimesh can read (OBJ, STL, PLY, GLB): "
-                        f"{' '.join(str(exc).split())}") from exc
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise MeshError(f"{path} holds no triangles")
-    return trimesh.Trimesh(np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces), process=False)
-
-
 def check_units(extents: np.ndarray, units: str, scale: float, path: str | Path) -> None:
     """MeshError when the object's longest side (``extents`` in file units) in ``units`` times ``scale`` is not
     between ``MIN_SIDE`` and ``MAX_SIDE``, naming the units that would make it plausible."""
@@ -97,7 +80,7 @@ def _length(metres: float) -> str:
 def import_mesh(path: str | Path, units: str, scale: float = 1.0,
                 offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[trimesh.Trimesh, ImportReport]:
     """Read, check and repair a user's mesh (module docstring) -> (mesh in metres, what was done)."""
-    raw = read_mesh_file(path)
+    raw = load_mesh_file(path)  # file units; MeshError for a missing file or one that is not a mesh
     report = ImportReport(str(path), units, float(scale), int(len(raw.faces)))
     check_units(raw.extents, units, scale, path)
     mesh = trimesh.Trimesh(raw.vertices * UNITS[units] * scale + np.asarray(offset, dtype=np.float64), raw.faces,
