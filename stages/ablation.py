@@ -23,51 +23,20 @@ from __future__ import annotations
 
 import sys
 import uuid
-from pathlib import Path
 
 import numpy as np
 from omegaconf import OmegaConf
 
+from tactile6d.core.config import config_for_workers
 from tactile6d.core.errors import ConfigError, exit_on_error
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_json
-from tactile6d.estimation.estimator import Estimator
 from tactile6d.estimation.optimize import use_cpu_devices
-from tactile6d.evaluation import scoring
 from tactile6d.evaluation.ablation_variants import estimator_settings_key, variant_config
-from tactile6d.evaluation.sensor_subsets import SubsetRows, score_scene_subsets, summarise_subset_rows
-from tactile6d.runtime.executor import executor_from_config, process_cache
+from tactile6d.evaluation.sensor_subsets import scene_task_input, score_scene_task, summarise_subset_rows
+from tactile6d.runtime.executor import executor_from_config
 from tactile6d.runtime.stage_args import parse_stage_args
 from tactile6d.runtime.stage_clock import timed
-from tactile6d.sim.scenes import scene_backgrounds
-
-
-def score_scene(run: str, name: str, cfg_container: dict, scene: dict[str, np.ndarray],
-                counts: tuple[int, ...]) -> dict[int, SubsetRows]:
-    """One task: a scene estimated from every subset of each of ``counts`` of its sensors with variant
-    ``name`` -> count -> its rows.
-
-    run: a token of this stage run, so that a worker process that ran an earlier one reloads (the
-    artifacts may have changed); cfg_container: the variant's whole config (``variant_config``) as plain
-    containers; scene: ``object`` (str), ``T_world_object`` (4, 4), ``T_world_sensors`` (L, 4, 4),
-    ``images`` (L, 320, 240, 3) uint8, ``backgrounds`` (L, 320, 240, 3) uint8 the sensors' own no-contact
-    images or None. The variant's estimators (one per object, loaded when first
-    needed) and the objects' references are kept per process (``process_cache``): one variant's
-    estimators at a time, so that a process holds no more than the former one-variant-per-process did.
-    """
-    variant = process_cache(("ablation estimators", run, name), lambda: (OmegaConf.create(cfg_container), {}),
-                            slot="ablation estimators")
-    references = process_cache(("ablation references", run), dict, slot="ablation references")
-    cfg, estimators = variant
-    artifacts = cfg.paths.artifacts_dir
-    obj = str(scene["object"])
-    if obj not in estimators:
-        estimators[obj] = Estimator.from_artifacts(obj, artifacts, cfg)
-    if obj not in references:
-        references[obj] = scoring.load_object_reference(artifacts, obj)
-    return {L: score_scene_subsets(estimators[obj], scene["T_world_sensors"], scene["images"], scene["T_world_object"],
-                                   references[obj], L, scene["backgrounds"])
-            for L in counts}
 
 
 def variants_on(scene_set: str, names: list[str], only_on: dict, per_set: dict | None = None) -> list[str]:
@@ -119,25 +88,15 @@ def main(argv: list[str] | None = None) -> int:
     for name, variant_cfg in variants.items():
         first = first_with[estimator_settings_key(variant_cfg)]
         counts[first] = tuple(sorted({*counts[first], *counts_of[name]}))
-    scene_data = [{"object": obj, "T_world_object": scenes["T_world_object"][s],
-                   "T_world_sensors": scenes["T_world_sensors"][s], "images": scenes["images"][s],
-                   "backgrounds": scene_backgrounds(scenes, s)}
-                  for s, obj in enumerate(objects)]
-    containers = {}
-    for name in unique:
-        # An absolute artifacts path: a worker's working directory may be another one.
-        container = OmegaConf.to_container(variants[name], resolve=True)
-        container["paths"]["artifacts_dir"] = str(Path(artifacts).resolve())
-        if container["paths"]["data_dir"] is not None:
-            container["paths"]["data_dir"] = str(Path(container["paths"]["data_dir"]).expanduser().resolve())
-        containers[name] = container
+    scene_data = [scene_task_input(scenes, s) for s in range(len(objects))]
+    containers = {name: config_for_workers(variants[name]) for name in unique}
     jobs = [(name, s) for name in unique for s in range(len(objects))]  # variant-major: a worker keeps one variant's estimators
     run = uuid.uuid4().hex
     # JAX's device count is set once per process, before any estimate (the paper's variant runs the gd solver).
     with executor_from_config(cfg, workers, initializer=use_cpu_devices, initargs=(int(cfg.optimize.cpu_devices),)) as ex:
         print(f"ablation {args.scene_set}: {len(unique)} distinct variants x {len(objects)} scenes on {ex.describe()}",
               flush=True)
-        rows = ex.map(score_scene, [run] * len(jobs), [n for n, _ in jobs], [containers[n] for n, _ in jobs],
+        rows = ex.map(score_scene_task, [run] * len(jobs), [n for n, _ in jobs], [containers[n] for n, _ in jobs],
                       [scene_data[s] for _, s in jobs], [counts[n] for n, _ in jobs], desc=f"ablation {args.scene_set}")
     by_job = dict(zip(jobs, rows))
 

@@ -2,25 +2,29 @@
 
 Each scene of the set is estimated again with every subset of its sensors of size L (3 singles, 3
 pairs, the triple), by both methods, through the online estimator (the code the select/optimize/rank
-stages call). Contact accuracy counts the sensors of the subset. Reads the scenes and each object's
-artifacts and config sections ``select``, ``optimize``, ``rank``; writes
+stages call). Contact accuracy counts the sensors of the subset. One task per method and scene
+(``sensor_subsets.score_scene_task``), ``evaluate.workers`` local processes by default, a Dask cluster's
+workers when ``executor.address`` names one; the rows come back in scene order, so the figures are the
+same wherever the tasks ran. Reads the scenes and each object's artifacts and config sections ``select``,
+``optimize``, ``rank``; writes
 ``artifacts/metrics/sensor_count_<set>.json`` and the plot data ``artifacts/plots/sensor_count_<set>.csv``.
 """
 
 from __future__ import annotations
 
 import sys
+import uuid
 from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from tactile6d.core.errors import exit_on_error
+from tactile6d.core.config import config_for_workers
+from tactile6d.core.errors import ConfigError, exit_on_error
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_json, write_text
-from tactile6d.estimation.estimator import Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
-from tactile6d.evaluation import scoring
-from tactile6d.evaluation.sensor_subsets import evaluate_sensor_count
+from tactile6d.evaluation.sensor_subsets import scene_task_input, score_scene_task, summarise_subset_rows
+from tactile6d.runtime.executor import executor_from_config
 from tactile6d.runtime.stage_args import parse_stage_args
 from tactile6d.runtime.stage_clock import timed
 
@@ -46,18 +50,28 @@ def main(argv: list[str] | None = None) -> int:
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = cfg.paths.artifacts_dir
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
-    objects = [str(o) for o in dict.fromkeys(scenes["objects"].tolist())]
     n_sensors = scenes["T_world_sensors"].shape[1] if len(scenes["names"]) else 0
 
-    references = {obj: scoring.load_object_reference(artifacts, obj) for obj in objects}
+    counts = tuple(range(1, n_sensors + 1))
+    containers = {method: config_for_workers(OmegaConf.merge(cfg, {"select": {"method": method}})) for method in METHODS}
+    jobs = [(method, s) for method in METHODS for s in range(len(scenes["names"]))]  # method-major: a worker keeps one library
+    workers = int(cfg.evaluate.workers)
+    if workers < 1:
+        raise ConfigError(f"evaluate.workers must be >= 1, got {workers}")
+    run = uuid.uuid4().hex
+    with executor_from_config(cfg, workers, initializer=use_cpu_devices_for,
+                              initargs=(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))) as ex:
+        rows = ex.map(score_scene_task, [run] * len(jobs), [m for m, _ in jobs], [containers[m] for m, _ in jobs],
+                      [scene_task_input(scenes, s) for _, s in jobs], [counts] * len(jobs),
+                      desc=f"sensor study {args.scene_set}")
+    by_job = dict(zip(jobs, rows))
+    scene_objects = [str(o) for o in scenes["objects"]]
 
     results = {}
     for method in METHODS:
-        method_cfg = OmegaConf.merge(cfg, {"select": {"method": method}})
-        estimators = {obj: Estimator.from_artifacts(obj, artifacts, method_cfg) for obj in objects}
         results[method] = {}
-        for L in range(1, n_sensors + 1):
-            summary, _ = evaluate_sensor_count(scenes, estimators, references, L, desc=f"{method} L={L}")
+        for L in counts:
+            summary, _ = summarise_subset_rows([by_job[method, s][L] for s in range(len(scene_objects))], scene_objects)
             results[method][f"L{L}"] = summary
             print(f"{args.scene_set} {method} L={L}: position {summary.get('pos_err_cm_top1', float('nan')):.2f} cm, "
                   f"contact {summary.get('contact_acc_top1', float('nan')):.1f} %")

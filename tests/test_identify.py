@@ -277,8 +277,8 @@ def prim_artifacts(tmp_path_factory):
 
 
 def test_the_command_takes_distractors_from_their_own_folder(prim_artifacts):
-    from tactile6d.cli.objects import KnownObjects
     from tactile6d.cli.identify import library_of
+    from tactile6d.cli.objects import KnownObjects
 
     known = KnownObjects(prim_artifacts, compose_config())
     assert library_of(None, known) == (["prim_box", "prim_cylinder"], ["shape_3"])

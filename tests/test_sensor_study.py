@@ -38,8 +38,14 @@ def artifacts(tmp_path_factory, data_dir):
 @pytest.mark.slow
 def test_every_sensor_count_and_method_is_reported(artifacts, data_dir, monkeypatch):
     monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
-    assert sensor_study.main(["--scene-set", "tiny", f"paths.artifacts_dir={artifacts}", "select.N=200"]) == 0
-    results = json.loads(layout.metrics_file(artifacts, "sensor_count_tiny").read_text())
+    # in this process (1), then spread over 2 worker processes (the default): the same figures
+    runs = {}
+    for workers in (1, 2):
+        assert sensor_study.main(["--scene-set", "tiny", f"paths.artifacts_dir={artifacts}", "select.N=200",
+                                  f"evaluate.workers={workers}"]) == 0
+        runs[workers] = layout.metrics_file(artifacts, "sensor_count_tiny").read_text()
+    assert runs[1] == runs[2]
+    results = json.loads(runs[2])
     assert set(results) == {"ours", "baseline"}
     for method in results:
         assert set(results[method]) == {"L1", "L2", "L3"}

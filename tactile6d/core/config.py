@@ -96,6 +96,18 @@ def require_key(cfg: DictConfig, key: str):
     return value
 
 
+def config_for_workers(cfg) -> dict:
+    """``cfg`` (a DictConfig or mapping) as plain resolved containers for another process: picklable, with
+    ``paths.artifacts_dir`` and ``paths.data_dir`` made absolute, since a worker's working directory may be
+    another (a Dask worker's)."""
+    container = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
+    paths = container.get("paths", {})
+    for key in ("artifacts_dir", "data_dir"):
+        if paths.get(key) is not None:
+            paths[key] = str(Path(paths[key]).expanduser().resolve())
+    return container
+
+
 def section_to_dict(cfg: DictConfig, key: str) -> dict:
     """A config section as a plain dict (for stamping into artifacts)."""
     return OmegaConf.to_container(require_key(cfg, key), resolve=True)

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d.core.config import compose_config
+from tactile6d.core.config import compose_config, config_for_workers
 from tactile6d.core.errors import ArtifactError, ConfigError, InputError, NoMatch
 from tactile6d.core.settings import Settings
 from tactile6d.data import layout
@@ -436,13 +436,7 @@ class LibrarySource:
 
     @classmethod
     def of(cls, objects, distractors, artifacts_dir, cfg, data_dir=None, background=None) -> LibrarySource:
-        from omegaconf import OmegaConf
-
-        container = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
-        paths = container.get("paths", {})
-        for key in ("artifacts_dir", "data_dir"):
-            if paths.get(key) is not None:
-                paths[key] = str(Path(paths[key]).expanduser().resolve())
+        container = config_for_workers(cfg)
         # A worker screens in its own process: no executor within an executor.
         container.setdefault("identify", {})["workers"] = 1
         container["executor"] = {**container.get("executor", {}), "address": None}

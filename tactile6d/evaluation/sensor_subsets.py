@@ -6,8 +6,11 @@ and the triple for L = 3). Each subset is one estimate of the online estimator a
 are summarised per object and averaged like Table I (``scoring.summarise_by_object``). The
 sensor_study stage (ours vs baseline) and the ablation stage (the accuracy switches) both run this.
 ``estimate_and_score`` (one estimate and its row of errors) is shared with scripts/eval_accuracy.py;
-``score_scene_subsets`` (one scene, every subset of a count) and ``summarise_subset_rows`` are the two
-halves of ``evaluate_sensor_count``, for callers that spread the scenes over worker processes.
+``score_scene_subsets`` (one scene, every subset of a count) and ``summarise_subset_rows`` (the rows of
+every scene of a count -> Table I's average row) are the two halves of a sensor-count evaluation;
+``score_scene_task`` is the first as a task for worker processes (``tactile6d.runtime.executor``), with
+``scene_task_input`` to make its scene argument: sensor_study and ablation spread their scenes over
+workers with them.
 """
 
 from __future__ import annotations
@@ -19,13 +22,14 @@ from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
-from tqdm import tqdm
+from omegaconf import OmegaConf
 
 from tactile6d.core.errors import NoMatch
 from tactile6d.estimation.estimator import Estimator
 from tactile6d.evaluation import scoring
 from tactile6d.evaluation.metric_table import ERROR_KEYS
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+from tactile6d.runtime.executor import process_cache
 from tactile6d.sim.scenes import scene_backgrounds
 
 
@@ -122,28 +126,36 @@ def summarise_subset_rows(rows: Sequence[SubsetRows], objects: Sequence[str]) ->
     return scoring.summarise_by_object(arrays, owners)["average"], seconds
 
 
-def evaluate_sensor_count(
-    scenes: Mapping[str, np.ndarray],
-    estimators: Mapping[str, Estimator],
-    references: Mapping[str, scoring.ObjectReference],
-    count: int,
-    desc: str = "",
-    progress: bool = True,
-) -> tuple[dict[str, float], list[float]]:
-    """Estimate every scene from every subset of ``count`` of its sensors and summarise.
+def scene_task_input(scenes: Mapping[str, np.ndarray], s: int) -> dict:
+    """Scene ``s`` of a ``scenes`` artifact as ``score_scene_task`` takes it: ``object`` (str),
+    ``T_world_object`` (4, 4), ``T_world_sensors`` (L, 4, 4), ``images`` (L, 320, 240, 3) uint8 and
+    ``backgrounds`` (L, 320, 240, 3) uint8, the sensors' own no-contact images, or None."""
+    return {"object": str(scenes["objects"][s]), "T_world_object": scenes["T_world_object"][s],
+            "T_world_sensors": scenes["T_world_sensors"][s], "images": scenes["images"][s],
+            "backgrounds": scene_backgrounds(scenes, s)}
 
-    scenes: a ``scenes`` artifact (``objects`` (S,), ``T_world_object`` (S, 4, 4), ``T_world_sensors``
-    (S, L, 4, 4), ``images`` (S, L, 320, 240, 3), optionally ``backgrounds`` (S, L, 320, 240, 3)); estimators
-    and references keyed by object name.
-    Returns the average row of ``scoring.summarise_by_object`` (the metric keys of
-    ``metric_table.SUMMARY_KEYS``; an empty dict for an empty set) and the wall-clock seconds of each
-    estimate. ``desc`` labels the progress bar (``progress=False``: none, e.g. in a worker process). An estimate
-    that matches nothing (``NoMatch``) counts as a failure, as in evaluate; bad input raises.
+
+def score_scene_task(run: str, name: str, cfg_container: dict, scene: dict, counts: tuple[int, ...]
+                     ) -> dict[int, SubsetRows]:
+    """One task: a scene (``scene_task_input``) estimated from every subset of each of ``counts`` of its
+    sensors with the estimators of config ``name`` -> count -> its rows (``score_scene_subsets``).
+
+    run: a token of the stage run, so that a worker process that ran an earlier one reloads (the artifacts
+    may have changed); name: what the config is called (an ablation variant, a method); cfg_container: that
+    whole config as plain containers (``core.config.config_for_workers``). The config's estimators (one per
+    object, loaded when first needed) and the objects' references are kept per process (``process_cache``),
+    one config's estimators at a time, so that a process holds no more than one config's library.
     """
-    objects = [str(o) for o in scenes["objects"]]
-    rows = [
-        score_scene_subsets(estimators[objects[s]], scenes["T_world_sensors"][s], scenes["images"][s],
-                            scenes["T_world_object"][s], references[objects[s]], count, scene_backgrounds(scenes, s))
-        for s in tqdm(range(len(objects)), desc=desc or f"L={count}", unit="scene", leave=False, disable=not progress)
-    ]
-    return summarise_subset_rows(rows, objects)
+    loaded = process_cache(("scene estimators", run, name), lambda: (OmegaConf.create(cfg_container), {}),
+                           slot="scene estimators")
+    references = process_cache(("scene references", run), dict, slot="scene references")
+    cfg, estimators = loaded
+    artifacts = cfg.paths.artifacts_dir
+    obj = str(scene["object"])
+    if obj not in estimators:
+        estimators[obj] = Estimator.from_artifacts(obj, artifacts, cfg)
+    if obj not in references:
+        references[obj] = scoring.load_object_reference(artifacts, obj)
+    return {L: score_scene_subsets(estimators[obj], scene["T_world_sensors"], scene["images"], scene["T_world_object"],
+                                   references[obj], L, scene["backgrounds"])
+            for L in counts}

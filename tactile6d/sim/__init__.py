@@ -1,5 +1,6 @@
 """The simulated world: the DIGIT renderer (``render``), superquadric presses for training (``superquadrics``),
-meshes and their collision pieces (``meshes``), points on an object's surface (``surface_sampling``), contact
+meshes and their collision pieces (``meshes``), a user's mesh file read in its declared units and checked
+(``mesh_import``), points on an object's surface (``surface_sampling``), contact
 types (``contact_types``), the press a pose predicts on a gel (``gel_press``), the rendered databases
 (``database``), scene sets (``scenes``) and what a real set-up does to them (``perturb``: light drift, sensor
 pose error).
