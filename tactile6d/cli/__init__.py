@@ -24,6 +24,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("bench", "batch"): ("bench_batch", "start-up and per-scene seconds of one `estimate` call on the paper's triplets"),
     ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
     ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),
+    ("add-object",): ("add_object", "a mesh file of yours as a library object: check it, configure it, make its artifacts"),
 }
 
 

@@ -2,10 +2,11 @@
 
 One scene folder in the paper's triplet layout (``poses_sensors.txt`` + ``Image_heatmap_<i>.png``, as
 for ``tactile6d estimate``) against the objects given with ``--objects`` (default: every object with
-artifacts in the artifacts directory, and every distractor with artifacts in its ``distractors/``
-folder, ``identify.distractors``). The images are read once; every object is estimated on them
-and scored with the weights the ``calibrate_identify`` stage fitted on the calibration scenes
-(``identify.calibration_scenes``; ``tactile6d.estimation.identifier``). Output: one line per object, most probable first, with its probability,
+artifacts in the artifacts directory, every distractor with artifacts in its ``distractors/``
+folder, ``identify.distractors``, and every one of your own objects with artifacts in ``own/``). The
+images are read once; every object is estimated on them and scored with the weights the
+``calibrate_identify`` stage fitted on the calibration scenes (``identify.calibration_scenes``;
+``tactile6d.estimation.identifier``). Output: one line per object, most probable first, with its probability,
 score and best pose (``x y z ax ay az angle``, world frame), objects that match nothing last; then the
 time per step. ``--json``: one JSON object (``Identification.to_dict``). Errors: one ``error:`` line and
 exit status 2; objects without artifacts are all named in that one line. The sensors' no-contact images:
@@ -74,17 +75,16 @@ def as_text(result: Identification) -> str:
     return "\n".join(lines)
 
 
-def library_of(names: list[str] | None, known: KnownObjects) -> tuple[list[str], list[str]]:
-    """(objects, distractors) of the library: ``names`` split into the two (a name with artifacts in the
-    artifacts directory is an object, else one of ``known.distractors`` is a distractor; InputError
-    for an unknown name), or without names every object and distractor with artifacts."""
+def library_of(names: list[str] | None, known: KnownObjects) -> tuple[list[str], list[str], list[str]]:
+    """(objects, distractors, own objects) of the library: ``names`` split by kind (``KnownObjects.get``;
+    InputError for an unknown name), or without names every object, distractor and own object with artifacts."""
     if not names:
-        objects, distractors = known.with_artifacts, known.distractors_with_artifacts
-        if not objects and not distractors:
+        library = (list(known.with_artifacts), list(known.distractors_with_artifacts), list(known.own_with_artifacts))
+        if not any(library):
             raise InputError(f"no objects to identify among: {known.listing()}")
-        return list(objects), list(distractors)
+        return library
     found = [known.get(name) for name in names]  # InputError for an unknown name
-    return [o.name for o in found if not o.distractor], [o.name for o in found if o.distractor]
+    return tuple([o.name for o in found if o.kind == kind] for kind in ("object", "distractor", "own"))
 
 
 def main(argv: list[str]) -> int:
@@ -93,13 +93,14 @@ def main(argv: list[str]) -> int:
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     known = KnownObjects(artifacts, cfg)
-    objects, distractors = library_of(args.objects, known)
+    objects, distractors, own = library_of(args.objects, known)
     T_world_sensors, images = read_scene_dir(args.scene)
     background = read_background_images(args.background) if args.background else None
     backgrounds, note = scene_backgrounds(Path(args.scene), len(T_world_sensors), background is not None)
     if note:
         print(note, file=sys.stderr)
-    with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors) as identifier:
+    with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors,
+                                   own=own) as identifier:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UnderdeterminedPoseWarning)
             warnings.simplefilter("always", LightWarning)

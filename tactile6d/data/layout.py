@@ -15,6 +15,13 @@ def distractors_dir(artifacts_dir: str | Path) -> Path:
     return Path(artifacts_dir) / "distractors"
 
 
+def own_dir(artifacts_dir: str | Path) -> Path:
+    """Where the user's own objects (config section ``own``: mesh files) keep their per-object artifacts, in
+    the same layout one level down, so that adding one re-runs no stage that reads the YCB objects' folders
+    (stages run with ``--own``)."""
+    return Path(artifacts_dir) / "own"
+
+
 def object_file(artifacts_dir: str | Path, name: str) -> Path:
     """Cleaned mesh, collision pieces, metric points (stage prepare_object)."""
     return Path(artifacts_dir) / "objects" / f"{name}.h5"

@@ -25,6 +25,10 @@ from tactile6d.data.hdf5 import Artifact, read_artifact
 # artifacts live under ``layout.distractors_dir``: one stage each for the whole library.
 DISTRACTOR_STAGES = {"prepare_object": "prepare_distractors", "sample_surface": "sample_distractors",
                      "render_database": "render_distractors", "encode_database": "encode_distractors"}
+# The per-object stages as dvc.yaml names them for your own objects (config section ``own``), whose artifacts
+# live under ``layout.own_dir``: one stage each per object, ``<stage>@<name>``.
+OWN_STAGES = {"prepare_object": "prepare_own", "sample_surface": "sample_own", "render_database": "render_own",
+              "encode_database": "encode_own"}
 # How many artifact files the cache keeps (three per object: object, surface and latents; the identification
 # library has 10 objects and 8 distractors).
 CACHED_FILES = 64
@@ -36,6 +40,8 @@ def require(path: Path, stage: str, name: str | None = None) -> Path:
     if not path.is_file():
         if name is not None and path.parent.parent.name == layout.distractors_dir("").name:
             stage, name = DISTRACTOR_STAGES.get(stage, stage), None
+        elif name is not None and path.parent.parent.name == layout.own_dir("").name:
+            stage = OWN_STAGES.get(stage, stage)
         target = stage if name is None else f"{stage}@{name}"
         raise ArtifactError(f"{path}: missing; make it with `dvc repro {target}` (or `dvc repro` for all)")
     return path

@@ -194,20 +194,25 @@ class Identifier:
         background: np.ndarray | None = None,
         calibrated: bool = True,
         distractors: Sequence[str] = (),
+        own: Sequence[str] = (),
     ) -> Identifier:
         """Load every object's artifacts (``Estimator.from_artifacts``); objects that cannot be loaded
         are named together in one error. The library is ``objects`` (artifacts in artifacts_dir), then
-        ``distractors`` (artifacts in ``layout.distractors_dir(artifacts_dir)``, see ``identify.distractors``).
+        ``distractors`` (artifacts in ``layout.distractors_dir(artifacts_dir)``, see ``identify.distractors``),
+        then ``own``, your own objects (artifacts in ``layout.own_dir(artifacts_dir)``, config section ``own``).
         cfg: the composed config (default: conf/); weights: cfg's ``identify.weights``, else the
         calibrate_identify stage's (``calibrated=False``: none, for calibrating). background: the sensors'
         no-contact image (320, 240, 3) uint8 RGB, or (L, 320, 240, 3) one per sensor in sensor order, as
         ``Estimator.from_artifacts`` takes it (default: ``render.background``)."""
         cfg = cfg if cfg is not None else compose_config()
-        both = set(objects) & set(distractors)
-        if both:
-            raise InputError(f"{', '.join(sorted(both))} cannot be both a library object and a distractor")
-        library = {**{name: None for name in objects}, **{name: layout.distractors_dir(artifacts_dir)
-                                                          for name in distractors}}
+        groups = {"a library object": list(objects), "a distractor": list(distractors), "one of your own": list(own)}
+        names = [name for group in groups.values() for name in group]
+        twice = sorted({name for name in names if names.count(name) > 1})
+        if twice:
+            raise InputError(f"{', '.join(twice)} cannot be more than one of: {', '.join(groups)}")
+        library = {**{name: None for name in objects},
+                   **{name: layout.distractors_dir(artifacts_dir) for name in distractors},
+                   **{name: layout.own_dir(artifacts_dir) for name in own}}
         if len(library) == 0:
             raise InputError("no objects to identify among")
         estimators, failed = {}, []
@@ -237,7 +242,8 @@ class Identifier:
                                         initargs=(str(cfg["optimize"]["solver"]), int(cfg["optimize"]["cpu_devices"])))
         if isinstance(executor, LocalExecutor) and executor.workers == 1:
             return identifier  # this process screens every object: nothing to spread
-        identifier.spread(executor, LibrarySource.of(objects, distractors, artifacts_dir, cfg, data_dir, background))
+        identifier.spread(executor, LibrarySource.of(objects, distractors, artifacts_dir, cfg, data_dir, background,
+                                                     own))
         return identifier
 
     def spread(self, executor: Executor, source: LibrarySource) -> None:
@@ -433,23 +439,25 @@ class LibrarySource:
     cfg: dict
     data_dir: str | None
     background: np.ndarray | None
+    own: tuple[str, ...] = ()
 
     @classmethod
-    def of(cls, objects, distractors, artifacts_dir, cfg, data_dir=None, background=None) -> LibrarySource:
+    def of(cls, objects, distractors, artifacts_dir, cfg, data_dir=None, background=None, own=()) -> LibrarySource:
         container = config_for_workers(cfg)
         # A worker screens in its own process: no executor within an executor.
         container.setdefault("identify", {})["workers"] = 1
         container["executor"] = {**container.get("executor", {}), "address": None}
         return cls(uuid.uuid4().hex, tuple(objects), tuple(distractors), str(Path(artifacts_dir).resolve()),
                    container, None if data_dir is None else str(Path(data_dir).resolve()),
-                   None if background is None else np.asarray(background))
+                   None if background is None else np.asarray(background), tuple(own))
 
     def load(self) -> Identifier:
         """The library's identifier, screening in this process (no weights: it only screens)."""
         from omegaconf import OmegaConf
 
         return Identifier.from_artifacts(self.objects, self.artifacts_dir, OmegaConf.create(self.cfg), self.data_dir,
-                                         self.background, calibrated=False, distractors=self.distractors)
+                                         self.background, calibrated=False, distractors=self.distractors,
+                                         own=self.own)
 
 
 def screen_task(source: LibrarySource, name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:

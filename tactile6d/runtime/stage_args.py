@@ -14,19 +14,19 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from tactile6d.core.config import load_config
-from tactile6d.data.layout import distractors_dir
+from tactile6d.data.layout import distractors_dir, own_dir
 
 
 def parse_stage_args(argv: list[str] | None, description: str, per_object: bool = False, add_arguments=None):
     """Common command line of ``python -m stages.<name>``.
 
-    ``[--params params.yaml] [--object NAME [--distractor] | --distractors] key=value ...``: without
+    ``[--params params.yaml] [--object NAME [--distractor | --own] | --distractors] key=value ...``: without
     ``--params`` the config is composed from ``conf/`` (so group overrides work), with it the composed file
     is read. ``add_arguments(parser)`` may add a stage's own flags. Returns ``(args, cfg)``; a per-object
     stage's ``args.names`` are the objects it makes (``--object``'s one, or with ``--distractors`` every
     distractor of the identification library, ``identify.distractors``, in one run) and
-    ``args.objects_dir`` is where their artifacts live: ``paths.artifacts_dir``, or for distractors
-    ``layout.distractors_dir`` of it.
+    ``args.objects_dir`` is where their artifacts live: ``paths.artifacts_dir``, for distractors
+    ``layout.distractors_dir`` of it, for your own objects (``--own``, config section ``own``) ``layout.own_dir``.
     """
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--params", help="composed params file (DVC passes params.yaml); default: compose conf/")
@@ -39,6 +39,9 @@ def parse_stage_args(argv: list[str] | None, description: str, per_object: bool 
         parser.add_argument("--distractor", action="store_true",
                             help="with --object: a distractor of the identification library, whose artifacts "
                                  "live under <artifacts>/distractors/")
+        parser.add_argument("--own", action="store_true",
+                            help="with --object: one of your own objects (config section own: a mesh file), "
+                                 "whose artifacts live under <artifacts>/own/")
     if add_arguments is not None:
         add_arguments(parser)
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
@@ -50,8 +53,14 @@ def parse_stage_args(argv: list[str] | None, description: str, per_object: bool 
         else:
             args.names = [args.object]
         artifacts = cfg.paths.artifacts_dir
-        in_library = args.distractor or args.distractors
-        args.objects_dir = distractors_dir(artifacts) if in_library else Path(artifacts)
+        if args.own and (args.distractor or args.distractors):
+            parser.error("--own names one of your own objects, not a distractor")
+        if args.own:
+            args.objects_dir = own_dir(artifacts)
+        elif args.distractor or args.distractors:
+            args.objects_dir = distractors_dir(artifacts)
+        else:
+            args.objects_dir = Path(artifacts)
     return args, cfg
 
 

@@ -18,17 +18,22 @@ is checked, in this order:
    types, the collision geometry and the inside/outside tests need a closed surface.
 
 The mesh returned is in metres, in the file's frame moved by ``offset`` (metres, after scaling).
+
+``MeshSource`` is one entry of config section ``own`` (the user's own objects: name -> mesh file, units,
+scale, offset), checked; ``own_objects(cfg)`` gives them all.
 """
 
 from __future__ import annotations
 
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from tactile6d.core.errors import MeshError
+from tactile6d.core.errors import ConfigError, MeshError
 from tactile6d.sim.meshes import load_mesh_file
 
 # Length of one file unit in metres.
@@ -54,6 +59,62 @@ class ImportReport:
 
     def to_dict(self) -> dict:
         return dict(vars(self))
+
+
+# An own object's name is a file name of its artifacts and part of DVC stage names (prepare_own@<name>).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+SOURCE_KEYS = ("mesh", "units", "scale", "offset")
+
+
+@dataclass(frozen=True)
+class MeshSource:
+    """A user's object as config section ``own`` declares it: its name, the mesh file (absolute, or relative
+    to the directory the stages run in, the repository root), the file's length unit (a key of ``UNITS``),
+    a scale on top of it and an offset in metres added after scaling."""
+
+    name: str
+    mesh: Path
+    units: str
+    scale: float = 1.0
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def from_config(cls, name: str, entry: Mapping) -> MeshSource:
+        """``own.<name>`` -> its source; ConfigError naming the key for a bad name, an unknown or missing key,
+        unknown units, a scale that is not positive or an offset that is not three numbers."""
+        where = f"own.{name}"
+        if not NAME_PATTERN.fullmatch(str(name)):
+            raise ConfigError(f"{where}: an object's name may hold letters, digits, '_', '.' and '-' only, and "
+                              "must start with a letter or digit (it names files and DVC stages)")
+        if not isinstance(entry, Mapping):
+            raise ConfigError(f"{where}: expected a mapping with keys {', '.join(SOURCE_KEYS)}, got {entry!r}")
+        unknown = sorted(set(map(str, entry)) - set(SOURCE_KEYS))
+        if unknown:
+            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)}; "
+                              f"an entry has {', '.join(SOURCE_KEYS)}")
+        for key in ("mesh", "units"):
+            if entry.get(key) in (None, ""):
+                raise ConfigError(f"{where}.{key} is missing")
+        units = str(entry["units"])
+        if units not in UNITS:
+            raise ConfigError(f"{where}.units: {units!r} unknown; one of {', '.join(UNITS)}")
+        scale = float(entry.get("scale", 1.0))
+        if not np.isfinite(scale) or scale <= 0:
+            raise ConfigError(f"{where}.scale must be a positive number, got {entry.get('scale')!r}")
+        offset = np.asarray(list(entry.get("offset", (0.0, 0.0, 0.0))), dtype=np.float64)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            raise ConfigError(f"{where}.offset must be three numbers (metres), got {entry.get('offset')!r}")
+        return cls(str(name), Path(str(entry["mesh"])), units, scale, tuple(float(v) for v in offset))
+
+    def load(self) -> tuple[trimesh.Trimesh, ImportReport]:
+        """The mesh in metres, checked and repaired, and the report (``import_mesh``)."""
+        return import_mesh(self.mesh, self.units, self.scale, self.offset)
+
+
+def own_objects(cfg) -> dict[str, MeshSource]:
+    """Config section ``own`` (absent or empty: no own objects), each entry checked (``MeshSource.from_config``)."""
+    section = cfg.get("own") if hasattr(cfg, "get") else None
+    return {str(name): MeshSource.from_config(str(name), entry) for name, entry in (section or {}).items()}
 
 
 def check_units(extents: np.ndarray, units: str, scale: float, path: str | Path) -> None:
