@@ -33,6 +33,7 @@ import yaml
 
 from tactile6d.core.config import composed_params_yaml
 from tactile6d.core.errors import ConfigError, InputError
+from tactile6d.runtime.stage_clock import STAGES_DIR
 from tactile6d.sim.mesh_import import UNITS, MeshSource
 
 STAGES = ("prepare_own", "sample_own", "render_own", "encode_own")
@@ -95,7 +96,7 @@ def stage_times(repo: Path, name: str) -> list[tuple[str, float | None]]:
     """Each of the four stages' recorded seconds (None when it has no record)."""
     out = []
     for target in dvc_targets(name):
-        record = repo / "artifacts" / "times" / "stages" / f"{target}.json"
+        record = repo / STAGES_DIR / f"{target}.json"
         out.append((target, json.loads(record.read_text())["seconds"] if record.is_file() else None))
     return out
 
