@@ -6,8 +6,9 @@ sets its own; a variant may start from a preset's sections), and each scene of t
 all its sensors; on the scene sets of ``ablation.curves_on``, a variant of ``ablation.curves`` also from
 every subset of 1, ..., L of them (``tactile6d.evaluation.sensor_subsets``, as in sensor_study). A variant of
 ``ablation.only_on`` runs on the scene sets it lists only; a scene set of ``ablation.variants_on`` runs
-the variants it lists only. Two variants that come out as the same settings (e.g. the last step of the
-chain and ``default``) are estimated once. Reads the scenes and each object's artifacts; writes
+the variants it lists only. Two variants that come out as the same settings at the sensor counts they
+are estimated at (e.g. the last step of the chain and ``default``; or steps that differ only in normal
+settings that do not apply at L = 3, ``ablation_variants.estimator_settings_key``) are estimated once. Reads the scenes and each object's artifacts; writes
 ``artifacts/metrics/ablation_<set>.json``: variant -> ``L<count>`` -> the evaluation's metric names, plus
 ``time_s_median`` (per estimate).
 
@@ -73,21 +74,18 @@ def main(argv: list[str] | None = None) -> int:
     per_set = OmegaConf.to_container(cfg.ablation.variants_on) if cfg.ablation.get("variants_on") else {}
     names = variants_on(args.scene_set, list(cfg.ablation.variants), only_on, per_set)
     variants = {name: variant_config(cfg, name, cfg.ablation.variants[name]) for name in names}
-    first_with = {}  # settings key -> the first variant that has those settings
-    for name, variant_cfg in variants.items():
-        first_with.setdefault(estimator_settings_key(variant_cfg), name)
-    unique = list(first_with.values())
-
     scenes = read_artifact(layout.scenes_file(artifacts, args.scene_set), "scenes")
     objects = [str(o) for o in scenes["objects"]]
     n_sensors = scenes["T_world_sensors"].shape[1] if objects else 0
     # Curves only where the report draws them (ablation.curves_on); elsewhere every variant at L alone.
     curves = list(cfg.ablation.curves or []) if args.scene_set in list(cfg.ablation.curves_on or []) else []
-    counts_of = sensor_counts(names, n_sensors, curves, list(cfg.ablation.variants))
-    counts = {first: () for first in unique}  # a variant estimated once for several names: every count they ask for
-    for name, variant_cfg in variants.items():
-        first = first_with[estimator_settings_key(variant_cfg)]
-        counts[first] = tuple(sorted({*counts[first], *counts_of[name]}))
+    counts = sensor_counts(names, n_sensors, curves, list(cfg.ablation.variants))
+    # Settings key at the variant's sensor counts -> the first variant with it: the others reuse its estimates.
+    keys = {name: estimator_settings_key(variant_cfg, counts[name]) for name, variant_cfg in variants.items()}
+    first_with = {}
+    for name in names:
+        first_with.setdefault(keys[name], name)
+    unique = list(first_with.values())
     scene_data = [scene_task_input(scenes, s) for s in range(len(objects))]
     containers = {name: config_for_workers(variants[name]) for name in unique}
     jobs = [(name, s) for name in unique for s in range(len(objects))]  # variant-major: a worker keeps one variant's estimators
@@ -111,8 +109,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"rot ADI-AUC {summary.get('adi_auc_rot_top1', float('nan')):.1f} %, "
                   f"contact {summary.get('contact_acc_top1', float('nan')):.1f} %, "
                   f"{summary['time_s_median']:.2f} s per estimate", flush=True)
-    results = {name: {f"L{L}": by_name[first_with[estimator_settings_key(c)]][f"L{L}"] for L in counts_of[name]}
-               for name, c in variants.items()}
+    results = {name: {f"L{L}": by_name[first_with[keys[name]]][f"L{L}"] for L in counts[name]} for name in names}
     write_json(layout.metrics_file(artifacts, f"ablation_{args.scene_set}"), results)
     return 0
 

@@ -1,7 +1,8 @@
 """Stage make_scenes: one scene set with ground truth (``caddeo2023`` imported; ``validation``, ``offaxis``,
 ``variation``, ``kinematic``, ``calibration`` and ``confidence`` generated: the last two from
 ``identify.calibration_scenes`` and ``confidence.scenes``, the scenes the stages calibrate_identify and
-calibrate_confidence fit on). A generated set's section may add what a real set-up does
+calibrate_confidence fit on; ``own`` from ``own_set.scenes`` over the own objects of ``own_set.files``, their
+artifacts under ``artifacts/own/``, which stage evaluate_own measures). A generated set's section may add what a real set-up does
 to its images or sensor poses (``light``, ``kinematics``: ``tactile6d.sim.perturb``), drawn after the clean
 set from a generator of its own, so the set's objects, poses and contacts are those of its clean draw.
 
@@ -29,10 +30,11 @@ from tactile6d.runtime.stage_clock import timed
 from tactile6d.sim import contact_types, perturb, scenes, surface_sampling
 from tactile6d.sim.render import DigitRenderer, load_background_bgr
 
-SCENE_SETS = ("caddeo2023", "validation", "offaxis", "variation", "kinematic", "calibration", "confidence")
-# The generated sets that fit something rather than measure it, with the config section each is drawn
-# from: kept out of ``scenes`` so that editing one re-makes no evaluated set.
-FIT_SETS = {"calibration": "identify.calibration_scenes", "confidence": "confidence.scenes"}
+SCENE_SETS = ("caddeo2023", "validation", "offaxis", "variation", "kinematic", "calibration", "confidence", "own")
+# The generated sets drawn from a section of their own rather than ``scenes``, so that editing one re-makes
+# no set of ``scenes.sets``: the two that fit something (the identification weights, the confidence) and
+# the own objects' set.
+FIT_SETS = {"calibration": "identify.calibration_scenes", "confidence": "confidence.scenes", "own": "own_set.scenes"}
 
 
 def import_caddeo2023(object_names: list[str], store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
@@ -70,7 +72,7 @@ def scene_spec(cfg, scene_set: str):
 
 
 def generate(scene_set: str, object_names: list[str], cfg, store: DataStore, artifacts_dir: str) -> scenes.SceneSet:
-    """A generated scene set from its config section (``scene_spec``)."""
+    """A generated scene set from its config section (``scene_spec``); the objects' artifacts in ``artifacts_dir``."""
     v = scene_spec(cfg, scene_set)
     spec = scenes.ValidationSpec(
         scenes_per_object=int(v.scenes_per_object),
@@ -120,11 +122,13 @@ def main(argv: list[str] | None = None) -> int:
     scene_set = args.scene_set
     artifacts_dir = cfg.paths.artifacts_dir
     store = DataStore(cfg.paths)
-    object_names = list(cfg.objects.names)
+    object_names, objects_dir = list(cfg.objects.names), artifacts_dir
+    if scene_set == "own":  # the own objects of own_set, whose artifacts live one level down
+        object_names, objects_dir = list(cfg.own_set.files), str(layout.own_dir(artifacts_dir))
     if scene_set == "caddeo2023":
-        out = import_caddeo2023(object_names, store, artifacts_dir)
+        out = import_caddeo2023(object_names, store, objects_dir)
     else:
-        out = generate(scene_set, object_names, cfg, store, artifacts_dir)
+        out = generate(scene_set, object_names, cfg, store, objects_dir)
     counts = np.bincount(out.contact_types.ravel(), minlength=len(contact_types.CONTACT_TYPES))
     print(f"{scene_set}: {len(out)} scenes; contact types "
           + ", ".join(f"{t} {c}" for t, c in zip(contact_types.CONTACT_TYPES, counts)))

@@ -44,3 +44,18 @@ def test_equal_settings_give_equal_keys_and_any_change_a_new_one(cfg):
     assert estimator_settings_key(default) == estimator_settings_key(variant_config(cfg, "again", None))
     moved = variant_config(cfg, "moved", {"select": {"delta_h": float(cfg.select.delta_h) / 2}})
     assert estimator_settings_key(moved) != estimator_settings_key(default)
+
+
+def test_normal_settings_that_apply_at_none_of_the_counts_leave_the_key(cfg):
+    # +refine, +normal_select and +normal_loss differ only in the normal check and term, which apply up to
+    # normal_max_sensors (2) sensors: at L = 3 they are one estimate, with curves over 1..3 three.
+    steps = [variant_config(cfg, n, cfg.ablation.variants[n]) for n in ("+refine", "+normal_select", "+normal_loss")]
+    assert steps[0].select.normal_tol_deg is None and steps[1].select.normal_tol_deg == 45.0
+    assert steps[1].optimize.normal_weight == 0.0 and steps[2].optimize.normal_weight > 0
+    assert len({estimator_settings_key(c, (3,)) for c in steps}) == 1
+    assert len({estimator_settings_key(c, (1, 2, 3)) for c in steps}) == 3
+    assert len({estimator_settings_key(c, (2,)) for c in steps}) == 3
+    # the counts are part of the key; a check that applies at any L keeps its settings in it
+    assert estimator_settings_key(steps[0], (3,)) != estimator_settings_key(steps[0], (1, 2, 3))
+    every_l = variant_config(cfg, "normals_every_L", cfg.ablation.variants["normals_every_L"])
+    assert estimator_settings_key(every_l, (3,)) != estimator_settings_key(steps[2], (3,))

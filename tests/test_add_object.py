@@ -25,7 +25,9 @@ def checkout(tmp_path):
 
 
 def test_the_entry_is_added_with_the_header_kept_and_params_refreshed(checkout, capsys):
-    header = (checkout / add_object.OWN_FILE).read_text().split("{}")[0]
+    before = (checkout / add_object.OWN_FILE).read_text()
+    header = "".join(line for line in before.splitlines(keepends=True) if line.startswith("#"))
+    assert before.startswith(header)  # the header comment is the file's first lines
     assert add_object.main(["bunny", str(BUNNY), "--units", "cm", "--scale", "5", "--repo", str(checkout),
                             "--no-run"]) == 0
     out = capsys.readouterr().out
@@ -33,7 +35,8 @@ def test_the_entry_is_added_with_the_header_kept_and_params_refreshed(checkout, 
                                          "encode_own@bunny" in out
     assert (checkout / add_object.OWN_FILE).read_text().startswith(header)
     cfg = compose_config(conf_dir=checkout / "conf")
-    assert own_objects(cfg) == {"bunny": MeshSource("bunny", BUNNY, "cm", 5.0, (0.0, 0.0, 0.0))}
+    assert own_objects(cfg) == {**own_objects(compose_config()),  # the entries there before are kept
+                                "bunny": MeshSource("bunny", BUNNY, "cm", 5.0, (0.0, 0.0, 0.0))}
     assert "bunny:" in (checkout / "params.yaml").read_text()
     # the same name again: refused, unless replaced
     with pytest.raises(InputError, match="'bunny' is already in"):

@@ -133,7 +133,7 @@ def landmark_settings(**overrides):
     return Settings.from_cfg(compose_config([f"{k}={v}" for k, v in base.items()]))
 
 
-SCREEN = {"N": 500, "delta_d_max": 0.01, "candidates": 10}
+SCREEN = {"N": 500, "delta_d_max": 0.01, "candidates": 10, "max_checks": None}
 
 
 @pytest.mark.slow  # end-to-end identification: out of the quick subset

@@ -430,3 +430,31 @@ def test_the_select_step_widens_the_normal_check_by_the_sensors_turn():
 
     assert [0, 1] not in kept(0, 0)
     assert [0, 1] in kept(1.5, 1.5)
+
+
+def _sphere_points(n, radius, rng):
+    p = rng.normal(size=(n, 3))
+    return radius * p / np.linalg.norm(p, axis=1, keepdims=True)
+
+
+def test_a_join_over_its_check_budget_is_no_match_and_a_large_budget_changes_nothing():
+    # Three sensors on a circle of radius 6 cm (a torus touched around its ring) against a sphere of radius 4 cm:
+    # every sensor pair (10.4 cm apart) fits many point pairs of the sphere, no triple does (circumradius 6 > 4).
+    rng = np.random.default_rng(3)
+    points = _sphere_points(400, 0.04, rng)
+    angles = np.radians([0.0, 120.0, 240.0])
+    s = 0.06 * np.stack([np.cos(angles), np.sin(angles), np.zeros(3)], axis=1)
+    omegas = [np.arange(400)] * 3
+    settings = {**SELECT, "delta_max": 0.01, "rule": "best_n"}
+    with pytest.raises(NoMatch, match="partial tuples to check"):
+        sel.select_tuples(points, s, omegas, 50, rng=rng, max_checks=10_000, **settings)
+    with pytest.raises(NoMatch, match="no tuple"):  # no budget: the same outcome, the whole join checked
+        sel.select_tuples(points, s, omegas, 50, rng=rng, **settings)
+    # A scene that does fit: a budget far above its work gives exactly the unbudgeted selection.
+    box, _, s_box = _scene(np.random.default_rng(4), 300, 3)
+    for rule in ("best_n", "paper"):
+        free = sel.select_tuples(box, s_box, [np.arange(300)] * 3, 50, rng=rng, **{**SELECT, "rule": rule})
+        capped = sel.select_tuples(box, s_box, [np.arange(300)] * 3, 50, rng=rng, max_checks=10**9,
+                                   **{**SELECT, "rule": rule})
+        np.testing.assert_array_equal(free.tuples, capped.tuples)
+        np.testing.assert_array_equal(free.errors, capped.errors)

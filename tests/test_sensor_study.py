@@ -88,8 +88,10 @@ def test_ablation_reports_each_variant_at_its_sensor_counts_and_sets(artifacts, 
     assert set(results) == {"paper", "normals", "paper_again"}  # "elsewhere" runs on validation only
     assert set(results["paper"]) == {"L1", "L2", "L3"}  # a curve: every sensor count
     assert set(results["normals"]) == set(results["paper_again"]) == {"L3"}  # the others: the scene's own L
-    # the same settings are estimated once (same timings too), at every count either name asks for
-    assert results["paper_again"]["L3"] == results["paper"]["L3"]
+    # the same settings give the same figures; they share one estimate where they are also made at the same
+    # sensor counts (estimator_settings_key; here paper's are 1-3, paper_again's 3: two estimates, two timings)
+    strip = lambda summary: {k: v for k, v in summary.items() if k != "time_s_median"}  # noqa: E731
+    assert strip(results["paper_again"]["L3"]) == strip(results["paper"]["L3"])
     for variant in results.values():
         for summary in variant.values():
             assert {"pos_err_cm_top1", "adi_auc_rot_top1", "contact_acc_top1", "time_s_median"} <= set(summary)

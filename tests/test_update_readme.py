@@ -39,6 +39,10 @@ PAGE = """Generated on a day.
 
 | e |
 
+### Your own objects: meshes tactile6d never saw (generated)
+
+| o |
+
 ### Ablation: each switch, L = 1, 2, 3 sensors
 
 | d |
@@ -53,7 +57,7 @@ def test_the_readme_gets_the_headline_sections_and_a_link_to_the_rest():
     body = update_readme.headline(PAGE)
     assert body.startswith("Generated on a day.")
     assert "| a | b |" in body and "](reports/figures/x.png)" in body and "| e |" in body and "| r |" in body
-    assert "](reports/figures/reliability.png)" in body
+    assert "](reports/figures/reliability.png)" in body and "| o |" in body
     assert "| c |" not in body and "| d |" not in body and "| stage | seconds |" in body
     assert "on [reports/results.md](reports/results.md): Per object, Ablation." in body
     assert body.index("The paper's 40") < body.index("Off-axis")

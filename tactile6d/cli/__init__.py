@@ -22,6 +22,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("bench", "estimate"): ("bench_estimate", "seconds per estimate (default, baseline, faithful) and peak memory"),
     ("bench", "identify"): ("bench_identify", "seconds per identification of the paper's triplets against the object library"),
     ("bench", "batch"): ("bench_batch", "start-up and per-scene seconds of one `estimate` call on the paper's triplets"),
+    ("bench", "add-object"): ("bench_add_object", "seconds of `tactile6d add-object` on a mesh of about 20 000 faces"),
     ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
     ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),
     ("add-object",): ("add_object", "a mesh file of yours as a library object: check it, configure it, make its artifacts"),

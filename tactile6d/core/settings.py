@@ -114,8 +114,11 @@ class SelectSettings(_Section):
     contacts: str
     centre_images: bool
     align_light: bool
+    max_checks: int | None
 
     def __post_init__(self) -> None:
+        if self.max_checks is not None and not self.max_checks >= 1:
+            raise ConfigError(f"select.max_checks must be null (no limit) or >= 1, got {self.max_checks}")
         if self.method not in METHODS:
             raise ConfigError(f"select.method must be one of {', '.join(METHODS)}, not {self.method!r}")
         if self.contacts not in CONTACT_SOURCES:

@@ -22,6 +22,16 @@ def own_dir(artifacts_dir: str | Path) -> Path:
     return Path(artifacts_dir) / "own"
 
 
+def third_party_meshes_dir(artifacts_dir: str | Path) -> Path:
+    """The meshes copied out of an installed package by stage import_package_meshes (config section ``own_set``)."""
+    return Path(artifacts_dir) / "third_party"
+
+
+def third_party_mesh_file(artifacts_dir: str | Path, name: str, suffix: str) -> Path:
+    """The copy of own object ``name``'s packaged mesh, keeping the file's suffix (``.obj``, ``.stl``...)."""
+    return third_party_meshes_dir(artifacts_dir) / f"{name}{suffix}"
+
+
 def object_file(artifacts_dir: str | Path, name: str) -> Path:
     """Cleaned mesh, collision pieces, metric points (stage prepare_object)."""
     return Path(artifacts_dir) / "objects" / f"{name}.h5"

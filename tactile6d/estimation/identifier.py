@@ -127,10 +127,12 @@ class Identification:
 
 def screen_settings(settings: Settings, screen: Mapping) -> Settings:
     """The settings of the pass over the library: ``settings`` with ``identify.screen``'s N,
-    delta_d_max and candidates."""
+    delta_d_max, max_checks and candidates."""
+    max_checks = screen["max_checks"]
     return dataclasses.replace(
         settings,
-        select=dataclasses.replace(settings.select, N=int(screen["N"]), delta_d_max=float(screen["delta_d_max"])),
+        select=dataclasses.replace(settings.select, N=int(screen["N"]), delta_d_max=float(screen["delta_d_max"]),
+                                   max_checks=None if max_checks is None else int(max_checks)),
         rank=dataclasses.replace(settings.rank, candidates=int(screen["candidates"])),
     )
 

@@ -336,14 +336,16 @@ _TABLE_SLACK = 1e-6
 _ANGLE_SLACK = 1e-9
 
 
-def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: int | None = None):
+def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: int | None = None,
+          max_checks: int | None = None):
     """Tuples with mean pair error < delta_d: (tuples (T, L), errors (T,), complete), unsorted.
 
     Grows partial tuples one sensor at a time. A partial tuple's running sum of pair errors must stay
     below the budget ``n_pairs * delta_d`` (the remaining pairs only add to it), and the candidates for
     sensor k are read from row j_0 of the anchor table (0, k), sorted by error, only as far as the
     remaining budget allows. With ``stop_after``, it returns early (complete = False) once more than
-    that many tuples have passed.
+    that many tuples have passed. With ``max_checks``, NoMatch once more than that many extensions of
+    partial tuples have been checked (``select_tuples``).
     """
     n_sensors = s.shape[0]
     if n_sensors == 1:
@@ -357,7 +359,7 @@ def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: in
     budget = n_pairs * delta_d + _TABLE_SLACK
     partial = np.arange(omegas[0].size)[:, None]
     sums = np.zeros(omegas[0].size)
-    found_tuples, found_errors, n_found = [], [], 0
+    found_tuples, found_errors, n_found, checks = [], [], 0, 0
     for k in range(1, n_sensors):
         keys, cols, starts, scale = tables.anchor(k, budget)
         last = k == n_sensors - 1
@@ -371,6 +373,11 @@ def _join(points, s, omegas, tables: _PairTables, delta_d: float, stop_after: in
             # The next run of partial tuples whose extensions fit in one vectorised step.
             hi = max(int(np.searchsorted(ends, ends[lo] - counts[lo] + _JOIN_CHUNK, side="right")), lo + 1)
             c = counts[lo:hi]
+            checks += int(c.sum())
+            if max_checks is not None and checks > max_checks:
+                raise NoMatch(f"more than {max_checks:.3g} partial tuples to check at delta_d={delta_d:g} m: the "
+                              "sensors' pairwise distances fit this object's database points nearly everywhere "
+                              "pair by pair, but not (yet) all together (e.g. a sphere against a curved object)")
             owner = np.repeat(np.arange(lo, hi), c)
             new = cols[np.repeat(starts[rows[lo:hi]] - (np.cumsum(c) - c), c) + np.arange(owner.size)]
             total = sums[owner]
@@ -479,6 +486,7 @@ def select_tuples(
     rule: str = "paper",
     normals: NormalCheck | None = None,
     tolerance: float = 0.0,
+    max_checks: int | None = None,
 ) -> DistanceSelection:
     """Distance-based selection with the adaptive threshold (module docstring).
 
@@ -491,9 +499,14 @@ def select_tuples(
     the optional normal-consistency test (``NormalCheck``; a test of pairs, so unused for L = 1);
     tolerance: m, how far the sensors' pair distances may be off (their poses' error,
     ``SensorSettings.pair_distance_tolerance``): the adaptive threshold is never lowered below it.
+    max_checks: the most extensions of partial tuples one threshold's join may check (None: no limit).
+    The join's work grows with how many point pairs fit each sensor pair alone: for a sphere against
+    three sensors on a larger curved object every pair fits somewhere and no triple does: its joins
+    checked 7e9 extensions in 214 s to find none. The identification's screen sets it
+    (``identify.screen.max_checks``), so that such an object costs seconds and is screened out.
 
     Raises NoMatch when no tuple passes even at ``delta_max`` (sensors farther apart, or closer,
-    than any pair of database points allows).
+    than any pair of database points allows), or when a join checks more than ``max_checks``.
     """
     points, s, omegas = _check_inputs(points, sensor_points, omegas)
     if n_max < 1 or not (delta_start > 0 and step_down > 0 and step_up > 0 and delta_max >= delta_start):
@@ -512,7 +525,7 @@ def select_tuples(
     tables = _PairTables(points, s, omegas, normals)
 
     def join(delta, stop_after=n_max):
-        return _join(points, s, omegas, tables, delta, stop_after)
+        return _join(points, s, omegas, tables, delta, stop_after, max_checks)
 
     if rule == "best_n":
         return _best_n(join, n_max, step_up, delta_max, s.shape[0] * (s.shape[0] - 1) // 2)
@@ -634,6 +647,7 @@ def select(
         rule=str(settings.delta_d_rule),
         normals=check,
         tolerance=sensors.pair_distance_tolerance,
+        max_checks=None if settings.max_checks is None else int(settings.max_checks),
     )
     return Selection(
         tuples=chosen.tuples,

@@ -14,13 +14,14 @@ Every variant runs method ``ours`` with the ablation's solver (``ablation.solver
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
 from tactile6d.core.config import CONF_DIR
 from tactile6d.core.errors import ConfigError
+from tactile6d.core.settings import OptimizeSettings, SelectSettings
 
 SECTIONS = ("select", "optimize", "rank")
 
@@ -46,6 +47,20 @@ def variant_config(cfg: DictConfig, name: str, variant: Mapping | None, conf_dir
     return OmegaConf.merge(cfg, base, preset, {s: variant[s] for s in SECTIONS if s in variant})
 
 
-def estimator_settings_key(cfg: DictConfig) -> str:
-    """The sections an estimate depends on, as canonical JSON: equal keys give equal estimates."""
-    return json.dumps({s: OmegaConf.to_container(cfg[s], resolve=True) for s in SECTIONS}, sort_keys=True)
+def estimator_settings_key(cfg: DictConfig, counts: Sequence[int] | None = None) -> str:
+    """The sections an estimate depends on, as canonical JSON: equal keys give equal estimates.
+
+    counts: the sensor counts the estimates are made at (None: any). Then the key holds them, and leaves out
+    the normal settings that apply at none of them (``select.normals_apply``, ``optimize.normal_weight_for``:
+    the normal check and the normal term are off above ``normal_max_sensors``), so that variants that differ
+    only there (``+refine``, ``+normal_select``, ``+normal_loss`` at L = 3) are estimated once.
+    """
+    sections = {s: OmegaConf.to_container(cfg[s], resolve=True) for s in SECTIONS}
+    if counts is None:
+        return json.dumps(sections, sort_keys=True)
+    select, optimize = SelectSettings.from_cfg(cfg.select), OptimizeSettings.from_cfg(cfg.optimize)
+    if not any(select.normals_apply(L) for L in counts):
+        sections["select"].update(normal_tol_deg=None, normal_max_sensors=None)
+    if not any(optimize.normal_weight_for(L) > 0 for L in counts):
+        sections["optimize"].update(normal_weight=0.0, normal_max_sensors=None)
+    return json.dumps({"counts": sorted(counts), **sections}, sort_keys=True)
