@@ -1,0 +1,38 @@
+"""scripts/rank_terms.py: the recorded calls become weighted score terms, and the rank module is left as it was."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+from omegaconf import OmegaConf
+
+import tactile6d.estimation.rank as rank_module
+
+spec = importlib.util.spec_from_file_location("rank_terms", Path(__file__).parents[1] / "scripts" / "rank_terms.py")
+rank_terms = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(rank_terms)
+
+
+def test_the_terms_are_weighted_as_rank_scores_them():
+    rank_cfg = OmegaConf.create({"refine_normal_weight": 0.01, "pose_correction_weight": 2.0, "agreement_weight": 0.5})
+    last = {"surface": (np.array([1e-3, 2e-3]), np.array([0.1, 0.0])),
+            "penetration": [np.array([9.0, 9.0]), np.array([0.0, 4e-4])],  # the last call: the refined candidates
+            "correction": np.array([1e-4, 0.0]), "agreement": np.array([0.0, 2e-3])}
+    terms = rank_terms.scene_terms(last, rank_cfg)
+    np.testing.assert_allclose(terms["surface"], [2e-3, 2e-3])
+    np.testing.assert_allclose(terms["penetration"], [0.0, 4e-4])
+    np.testing.assert_allclose(terms["correction"], [2e-4, 0.0])
+    np.testing.assert_allclose(terms["agreement"], [0.0, 1e-3])
+
+
+def test_the_recorder_puts_the_rank_functions_back():
+    before = (rank_module.penetration_cost, rank_module.agreement_cost, rank_module.distinct_in_order,
+              rank_module.refinement.sensor_corrections_cost, rank_module.refinement.surface_losses)
+    with rank_terms.Recorder() as recorder:
+        assert rank_module.penetration_cost is not before[0]
+        out = rank_module.penetration_cost(np.array([[1e-3, 3e-3]]), 1e-3)
+        np.testing.assert_allclose(out, [2e-3])
+        np.testing.assert_allclose(recorder.last["penetration"][-1], [2e-3])
+    after = (rank_module.penetration_cost, rank_module.agreement_cost, rank_module.distinct_in_order,
+             rank_module.refinement.sensor_corrections_cost, rank_module.refinement.surface_losses)
+    assert after == before
