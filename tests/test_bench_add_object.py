@@ -2,6 +2,7 @@
 checkout is put back as it was, whatever add-object wrote (its run is test_own_objects.py's and
 test_add_object.py's)."""
 
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from tactile6d.cli import bench_add_object as bench
+from tactile6d.core.config import CONF_DIR
 from tactile6d.core.errors import InputError
 from tactile6d.sim.mesh_import import import_mesh
 
@@ -27,8 +29,9 @@ def test_the_duck_is_subdivided_to_the_faces_asked_for_keeping_its_surface(tmp_p
 
 def test_the_checkout_is_put_back_and_the_objects_files_removed(tmp_path, monkeypatch, capsys):
     repo = tmp_path / "repo"
-    for path, text in ((bench.OWN_FILE, "# own\n{}\n"), (Path("params.yaml"), "own: {}\n"),
-                       (Path("dvc.lock"), "schema: '2.0'\n"), (Path("dvc.yaml"), "stages: {}\n")):
+    shutil.copytree(CONF_DIR, repo / "conf")  # the real config: the bench reads its own objects
+    for path, text in ((Path("params.yaml"), "own: {}\n"), (Path("dvc.lock"), "schema: '2.0'\n"),
+                       (Path("dvc.yaml"), "stages: {}\n")):
         (repo / path).parent.mkdir(parents=True, exist_ok=True)
         (repo / path).write_text(text)
     with pytest.raises(InputError, match="reuses the trained autoencoder"):

@@ -33,10 +33,10 @@ import yaml
 
 from tactile6d.core.config import composed_params_yaml
 from tactile6d.core.errors import ConfigError, InputError
+from tactile6d.data.object_artifacts import OWN_STAGES
 from tactile6d.runtime.stage_clock import STAGES_DIR
 from tactile6d.sim.mesh_import import UNITS, MeshSource
 
-STAGES = ("prepare_own", "sample_own", "render_own", "encode_own")
 OWN_FILE = Path("conf") / "own" / "default.yaml"
 
 
@@ -57,7 +57,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def dvc_targets(name: str) -> list[str]:
     """The ``dvc repro`` targets that make an own object's artifacts, in pipeline order."""
-    return [f"{stage}@{name}" for stage in STAGES]
+    return [f"{stage}@{name}" for stage in OWN_STAGES.values()]  # in pipeline order
 
 
 def stored_mesh_path(mesh: Path, repo: Path) -> str:

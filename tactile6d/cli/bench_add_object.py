@@ -27,9 +27,11 @@ import pybullet_data
 import trimesh
 
 from tactile6d.cli.add_object import OWN_FILE, dvc_targets, stage_times
+from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.data import layout
 from tactile6d.runtime.stage_clock import STAGES_DIR
+from tactile6d.sim.mesh_import import own_objects
 from tactile6d.sim.meshes import load_mesh_file
 
 NAME = "bench_add_object"
@@ -74,9 +76,9 @@ def main(argv: list[str]) -> int:
     if not layout.ae_checkpoint(repo / "artifacts").is_file():
         raise InputError(f"{layout.ae_checkpoint(repo / 'artifacts')} is missing: add-object reuses the trained "
                          "autoencoder; run `make reproduce` (or `dvc repro train_ae`) first")
-    saved = {path: (repo / path).read_bytes() for path in RESTORED if (repo / path).is_file()}
-    if NAME in (repo / OWN_FILE).read_text():
+    if NAME in own_objects(compose_config(conf_dir=repo / "conf")):
         raise InputError(f"{repo / OWN_FILE} already has an entry {NAME}: remove it first")
+    saved = {path: (repo / path).read_bytes() for path in RESTORED if (repo / path).is_file()}
     with tempfile.TemporaryDirectory() as tmp:
         if args.mesh is None:
             mesh_path, units, scale = Path(tmp) / "duck_subdivided.obj", "cm", 8.0
