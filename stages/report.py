@@ -287,6 +287,45 @@ def own_objects_section(artifacts: str, cfg) -> list[str]:
     ]
 
 
+def tracking_section(artifacts: str, figures: Path, cfg) -> list[str]:
+    """The tracker against single-shot estimation on the generated sequences (stage evaluate_tracking): the
+    set's figures, per sequence, and the error over time (``figures/tracking_error.png``)."""
+    m = load_json(layout.metrics_file(artifacts, "tracking"))
+    if not m:
+        return ["(not run)", ""]
+    summary = m["summary"]
+    plots.tracking_figure([q["name"] for q in m["sequences"]], m["frames"], summary["fps"],
+                          summary["lost_threshold_cm"] / 100).savefig(figures / "tracking_error.png", dpi=100)
+    rows = [f"| `{q['name']}` | {_cell(q['track_position_cm_median'])} | {_cell(q['track_position_cm_median_compared'])} | "
+            f"{_cell(q['single_position_cm_median'])} | {q['longest_over_s']:.2f} | {q['redetections']} |"
+            for q in m["sequences"]]
+    rows.append(f"| **all** | {_cell(summary['track_position_cm_median'])} | "
+                f"{_cell(summary['track_position_cm_median_compared'])} | {_cell(summary['single_position_cm_median'])} | "
+                f"{summary['longest_over_s_max']:.2f} (longest) | {summary['redetections']} |")
+    every = int(cfg.track.evaluation.single_shot_every)
+    return [
+        (f"{summary['sequences']} generated sequences of {summary['frames'] // summary['sequences']} frames at "
+         f"{summary['fps']:g} frames per second (stage `make_sequences`, conf/sequences: an object in a three-sensor grasp "
+         "that rolls and slides, contacts moving over the gels, one sensor sometimes lifting off, the grasp moving in the "
+         f"world; sensor poses off by a hand's kinematic error, {float(cfg.sequences.pose_sigma_mm):g} mm and "
+         f"{float(cfg.sequences.pose_sigma_deg):g} deg per axis, fixed per sequence). Each is followed frame by frame by "
+         "`tactile6d.estimation.tracker.Tracker` (conf/track), and every "
+         f"{every}{'rd' if every == 3 else 'th'} frame is also estimated from scratch (single-shot, default settings). "
+         "Positional error medians over frames, in cm; lost: the longest run of frames over "
+         f"{summary['lost_threshold_cm']:g} cm, in seconds; re-detections: frames estimated from scratch inside the "
+         "tracker (its first frame, every `track.redetect_every` frames, and when every pose it follows fails its fit "
+         "check)."),
+        "",
+        "| sequence | tracked, all frames | tracked, compared frames | single-shot, compared frames | lost (s) | "
+        "re-detections |",
+        "|---|---|---|---|---|---|",
+        *rows,
+        "",
+        "![tracking error over time](figures/tracking_error.png)",
+        "",
+    ]
+
+
 def stage_family(name: str) -> str:
     """``render_database@004_sugar_box`` -> ``render_database``: the dvc.yaml stage a foreach/matrix item belongs to."""
     return name.split("@", 1)[0]
@@ -418,6 +457,9 @@ def main(argv: list[str] | None = None) -> int:
         "### Your own objects: meshes tactile6d never saw (generated)",
         "",
         *own_objects_section(artifacts, cfg),
+        "### Tracking: following the object over frames (generated sequences)",
+        "",
+        *tracking_section(artifacts, figures, cfg),
         "### Sensor count (caddeo2023)",
         "",
         "![sensor count](figures/sensor_count.png)" if sensor_count else "(not run)",

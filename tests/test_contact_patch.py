@@ -7,6 +7,8 @@ one made once per module (the default is larger and more accurate).
 import cv2
 import numpy as np
 import pytest
+import scipy.sparse
+import scipy.sparse.linalg
 from test_estimator import small_patch_model
 
 from tactile6d.core import sensor
@@ -318,3 +320,273 @@ def test_fit_model_needs_a_contact():
     grey = np.full((1, H, W, 3), 128, dtype=np.uint8)
     with pytest.raises(DataError, match="no calibration image"):
         contact_patch.fit_model(grey, grey[0], np.zeros((1, H, W, 3)), np.zeros((1, H, W)))
+
+
+# --- the computation on a box around the mask is the whole-image one, bit for bit --------------------------
+#
+# image_to_patch runs the per-pixel steps on a box around the mask and takes shortcuts that must not move a
+# bit (see contact_patch, "the region the per-pixel work is done on"). The reference below is the plain
+# whole-image computation those steps replaced, kept verbatim; every output must be the same bits.
+
+
+def _reference_difference(image, no_contact):
+    img, bg = contact_patch.check_image(image), contact_patch.check_image(no_contact)
+    clipped = ((img == 0) & (bg != 0)) | ((img == 255) & (bg != 255))
+    if np.mean(np.any(clipped, axis=-1)) > contact_patch._MAX_SATURATED_FRACTION:
+        raise InputError("saturated")
+    return img.astype(np.float32) - bg.astype(np.float32)
+
+
+def _reference_noise(diff):
+    lap = diff[1:-1, 1:-1] - 0.25 * (diff[:-2, 1:-1] + diff[2:, 1:-1] + diff[1:-1, :-2] + diff[1:-1, 2:])
+    return float(1.4826 * np.median(np.abs(lap)) / np.sqrt(1.25))
+
+
+def _reference_mask(smooth, noise, model):
+    s = max(contact_patch.smoothed_noise(noise, model.mask_sigma), 0.05)
+    magnitude = np.sqrt(np.sum(smooth.astype(np.float64) ** 2, axis=-1))
+    low = (magnitude > model.grow_level * s).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(low, connectivity=8)
+    if count <= 1:
+        return np.zeros(magnitude.shape, dtype=bool)
+    peak = np.zeros(count)
+    np.maximum.at(peak, labels.ravel(), magnitude.ravel())
+    keep = (peak > model.seed_level * s) & (stats[:, cv2.CC_STAT_AREA] >= model.min_area)
+    keep[0] = False
+    mask = keep[labels].astype(np.uint8)
+    if not mask.any():
+        return mask.astype(bool)
+    mask = contact_patch._convex_hull(mask).astype(np.uint8)
+    size = 2 * int(model.erode) + 1
+    return cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
+
+
+def _reference_features(colour, rays, degree, colour_scale):
+    x = np.concatenate([np.asarray(colour, np.float64) / colour_scale, 2.0 * np.asarray(rays)[:, 1:3]], axis=1)
+    exps = contact_patch._monomial_exponents(x.shape[1], degree)
+    powers = np.ones((x.shape[1], degree + 1, len(x)))
+    for p in range(1, degree + 1):
+        powers[:, p] = powers[:, p - 1] * x.T
+    feats = np.ones((len(x), len(exps)))
+    for k, e in enumerate(exps):
+        for i in np.flatnonzero(e):
+            feats[:, k] *= powers[i, e[i]]
+    return feats
+
+
+def _reference_lateral_to_normals(lateral):
+    lat = np.asarray(lateral, dtype=np.float64)
+    r = np.linalg.norm(lat, axis=1, keepdims=True)
+    lat = np.where(r > contact_patch._MAX_LATERAL, lat * (contact_patch._MAX_LATERAL / np.maximum(r, 1e-12)), lat)
+    nx = -np.sqrt(1.0 - np.sum(lat**2, axis=1))
+    return np.concatenate([nx[:, None], lat], axis=1)
+
+
+def _reference_normals(smooth, mask, model):
+    k = 2
+    _, _, gel_normals = contact_patch._camera_geometry()
+    block_rays, block_gel = contact_patch._block_geometry(k)
+    block_mask = contact_patch._block_mean(mask.astype(np.float32), k) > 0.0
+    block_normals = block_gel.copy()
+    block_depth = np.zeros(block_mask.shape)
+    if block_mask.any():
+        colour = contact_patch._block_mean(smooth, k)[block_mask]
+        feats = _reference_features(colour, block_rays[block_mask], model.degree, model.colour_scale)
+        pred = feats @ model.coefficients
+        block_normals[block_mask] = _reference_lateral_to_normals(pred[:, :2])
+        block_depth[block_mask] = np.clip(pred[:, 2] * 1e-3, 0.0, None)
+    up = cv2.resize(block_normals.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR).astype(np.float64)
+    up /= np.linalg.norm(up, axis=-1, keepdims=True)
+    normals = np.where(mask[..., None], up, gel_normals)
+    depth = np.where(mask, cv2.resize(block_depth.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR), 0.0)
+    return normals, depth
+
+
+def _reference_log_gradients(normals):
+    rays = contact_patch._camera_geometry()[0]
+    n_dot_r = np.minimum(np.sum(normals * rays, axis=-1), -1e-3)
+    scale = -1.0 / contact_patch._FOCAL
+    return (-normals[..., 1] / n_dot_r) * scale, (-normals[..., 2] / n_dot_r) * scale
+
+
+def _reference_depth(normals, mask, k, prior):
+    block_mean = contact_patch._block_mean
+    _, t_gel, _ = contact_patch._camera_geometry()
+    depth = np.zeros(mask.shape, dtype=np.float32)
+    gc, gr = _reference_log_gradients(normals)
+    gc, gr = block_mean(gc, k) * k, block_mean(gr, k) * k
+    coarse_mask = block_mean(mask.astype(np.float64), k) > 0.0
+    log_gel = np.log(block_mean(t_gel, k))
+    h, w = coarse_mask.shape
+    index = -np.ones((h, w), dtype=np.int64)
+    index[coarse_mask] = np.arange(int(coarse_mask.sum()))
+    n = int(coarse_mask.sum())
+    rows, cols, vals, rhs = [], [], [], []
+    eq = 0
+    for axis, g in ((1, gc), (0, gr)):
+        a_idx = index[:, :-1] if axis == 1 else index[:-1, :]
+        b_idx = index[:, 1:] if axis == 1 else index[1:, :]
+        step = 0.5 * ((g[:, :-1] + g[:, 1:]) if axis == 1 else (g[:-1, :] + g[1:, :]))
+        la = log_gel[:, :-1] if axis == 1 else log_gel[:-1, :]
+        lb = log_gel[:, 1:] if axis == 1 else log_gel[1:, :]
+        use = (a_idx >= 0) | (b_idx >= 0)
+        a_i, b_i, st, la_, lb_ = a_idx[use], b_idx[use], step[use], la[use], lb[use]
+        e = eq + np.arange(len(st))
+        r = st.copy()
+        r[a_i < 0] += la_[a_i < 0]
+        r[b_i < 0] -= lb_[b_i < 0]
+        rows += [e[b_i >= 0], e[a_i >= 0]]
+        cols += [b_i[b_i >= 0], a_i[a_i >= 0]]
+        vals += [np.ones(int(np.sum(b_i >= 0))), -np.ones(int(np.sum(a_i >= 0)))]
+        rhs.append(r)
+        eq += len(st)
+    weight = 1e-3
+    rows.append(eq + np.arange(n)); cols.append(np.arange(n)); vals.append(np.full(n, weight))
+    t_prior = np.exp(log_gel) - (0.0 if prior is None else block_mean(prior, k))
+    rhs.append(weight * np.log(np.maximum(t_prior, 1e-3))[coarse_mask])
+    A = scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(eq + n, n))
+    L = scipy.sparse.linalg.spsolve((A.T @ A).tocsc(), A.T @ np.concatenate(rhs))
+    coarse_log = log_gel.copy()
+    coarse_log[coarse_mask] = L
+    coarse_depth = np.exp(log_gel) - np.exp(coarse_log)
+    full = cv2.resize(coarse_depth.astype(np.float32), (w * k, h * k), interpolation=cv2.INTER_LINEAR)
+    depth[: h * k, : w * k] = full
+    depth[~mask] = 0.0
+    return np.maximum(depth, 0.0, out=depth)
+
+
+def _reference_contact(depth, normals, top_band):
+    dmax = float(depth.max())
+    if not dmax > 0.0:
+        return None, None
+    w = np.clip(depth - dmax * (1.0 - top_band), 0.0, None).astype(np.float64)
+    sel = w > 0
+    if not sel.any():
+        sel = depth >= dmax
+        w = sel.astype(np.float64)
+    w = w[sel] / w[sel].sum()
+    normal = w @ normals[sel]
+    return w @ contact_patch.depth_to_points(depth)[sel], normal / np.linalg.norm(normal)
+
+
+def _reference_patch(image, no_contact, model):
+    """The whole-image computation -> (mask, depth, point, normal, noise, normals, direct depth)."""
+    diff = _reference_difference(image, no_contact)
+    noise = _reference_noise(diff)
+    mask = _reference_mask(contact_patch.smooth_difference(diff, model.mask_sigma), noise, model)
+    if not mask.any():
+        return mask, np.zeros((H, W), np.float32), None, None, noise, None, None
+    normals, direct = _reference_normals(contact_patch.smooth_difference(diff, model.sigma), mask, model)
+    depth = _reference_depth(normals, mask, model.grid_step, direct)
+    point, normal = _reference_contact(depth, normals, model.top_band)
+    return mask, depth, point, normal, noise, normals, direct
+
+
+def _touches_border(mask):
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
+# (shape, contact point, normal, press arguments, what the mask must be like for the case to test what it says)
+BOX_CASES = {
+    "small, far from the border": (SPHERE, [-0.01, 0.0, 0.0], dict(depth=0.0008),
+                                   lambda m, box: m.mean() < 0.15 and not _touches_border(m)),
+    "in a corner, touching two borders": (SPHERE, [-0.01, 0.0, 0.0], dict(offset=(0.007, 0.009), depth=0.0015, seed=3),
+                                          lambda m, box: m[0].any() and m[:, 0].any() and box[0].stop < H),
+    "box clipped at the border, mask not touching it": (SPHERE, [-0.01, 0.0, 0.0],
+                                                        dict(offset=(0.0, 0.008), depth=0.0015, seed=4),
+                                                        lambda m, box: box[0].start == 0 and not _touches_border(m)),
+    "most of the image": (BOX, [-0.03, 0.0, 0.0], dict(depth=0.0025, seed=5), lambda m, box: m.mean() > 0.9),
+    "a wide band across": (sq.Superquadric(0.04, 0.04, 0.04, 1.0, 1.0), [-0.04, 0.0, 0.0], dict(depth=0.0025, seed=6),
+                           lambda m, box: 0.5 < m.mean() < 0.9 and m[:, 0].any() and m[:, -1].any()),
+}
+
+
+@pytest.mark.parametrize("case", list(BOX_CASES))
+def test_image_to_patch_is_the_whole_image_computation_bit_for_bit(renderer, mesh_of, model, no_contact, case):
+    shape, point, kwargs, as_described = BOX_CASES[case]
+    result, *_ = press(renderer, mesh_of, shape, point, [-1.0, 0.0, 0.0], **kwargs)
+    mask, depth, p, n, noise, normals, direct = _reference_patch(result.image, no_contact, model)
+    box = contact_patch._work_box(mask, model.grid_step)
+    assert as_described(mask, box), f"the press no longer makes the case {case!r}"
+    est = contact_patch.image_to_patch(result.image, no_contact, model)
+    assert est.contact
+    np.testing.assert_array_equal(est.mask, mask)
+    assert est.depth.dtype == depth.dtype and np.array_equal(est.depth, depth)
+    assert np.array_equal(est.point, p) and np.array_equal(est.normal, n)
+    assert est.noise == noise
+    # the public steps on their own, too
+    diff = contact_patch.images_to_difference(result.image, no_contact)
+    smooth = contact_patch.smooth_difference(diff, model.sigma)
+    got_normals, got_direct = contact_patch.difference_to_normals(smooth, mask, model)
+    assert np.array_equal(got_normals, normals) and np.array_equal(got_direct, direct)
+    gradients = contact_patch.normals_to_log_gradients(normals)
+    assert all(np.array_equal(a, b) for a, b in zip(gradients, _reference_log_gradients(normals)))
+    assert np.array_equal(contact_patch.normals_to_depth(normals, mask, model.grid_step, direct), depth)
+    got_point, got_normal = contact_patch.depth_to_contact(depth, normals, model.top_band)
+    assert np.array_equal(got_point, p) and np.array_equal(got_normal, n)
+
+
+def test_normals_to_depth_needs_only_the_normals_near_the_mask(renderer, mesh_of, model, no_contact):
+    """Normals far from the mask are never read: garbage there changes nothing; next to it, it does."""
+    result, *_ = press(renderer, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0], depth=0.0008)
+    mask, depth, _, _, _, normals, direct = _reference_patch(result.image, no_contact, model)
+    rows, cols = np.nonzero(mask)
+    spoiled = normals.copy()
+    far = np.ones((H, W), dtype=bool)
+    far[max(rows.min() - 8, 0) : rows.max() + 9, max(cols.min() - 8, 0) : cols.max() + 9] = False
+    spoiled[far] = [-0.6, 0.8, 0.0]
+    assert np.array_equal(contact_patch.normals_to_depth(spoiled, mask, model.grid_step, direct), depth)
+    near = spoiled.copy()
+    near[rows.min() - 2, cols.min() : cols.max()] = [-0.6, 0.8, 0.0]  # the row above the mask's top
+    assert not np.array_equal(contact_patch.normals_to_depth(near, mask, model.grid_step, direct), depth)
+
+
+def test_noise_from_a_histogram_and_the_saturation_count_are_the_plain_computation(renderer, mesh_of, no_contact):
+    result, *_ = press(renderer, mesh_of, BOX, [-0.03, 0.0, 0.0], [-1.0, 0.0, 0.0], seed=2)
+    rng = np.random.default_rng(0)
+    pairs = [(result.image, no_contact), (no_contact, no_contact), (renderer.no_contact(seed=5), no_contact)]
+    for _ in range(3):  # every level, saturated ends included
+        pairs.append(tuple(rng.integers(0, 256, (H, W, 3), dtype=np.uint8) for _ in range(2)))
+    for image, background in pairs:
+        diff = contact_patch.images_to_difference(image, background)
+        assert np.array_equal(diff, _reference_difference(image, background))
+        noise = _reference_noise(diff)
+        assert contact_patch._whole_level_noise(diff) == noise == contact_patch.difference_to_noise(diff)
+        odd = diff[:-1, :-1, :1]  # an odd number of residuals: the median is one of them
+        assert odd[1:-1, 1:-1].size % 2 == 1 and contact_patch._whole_level_noise(odd) == _reference_noise(odd)
+    for _ in range(300):  # few residuals, spread out: the two middle ones usually differ
+        shape = (rng.integers(3, 7), rng.integers(3, 7), rng.integers(1, 4))
+        diff = rng.integers(-255, 256, shape).astype(np.float32)
+        assert contact_patch._whole_level_noise(diff) == _reference_noise(diff)
+    image = no_contact.copy()
+    for fraction, raises in ((0.6, True), (0.4, False)):  # pixels clipped in one channel only
+        rows = int(fraction * H)
+        image[:rows, :, 1] = np.where(no_contact[:rows, :, 1] == 255, 0, 255)
+        if raises:
+            with pytest.raises(InputError, match="saturated"):
+                contact_patch.images_to_difference(image, no_contact)
+        else:
+            image[rows:] = no_contact[rows:]
+            expected = _reference_difference(image, no_contact)
+            assert np.array_equal(contact_patch.images_to_difference(image, no_contact), expected)
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4])
+def test_regression_features_and_normals_are_the_textbook_evaluation(degree):
+    rng = np.random.default_rng(degree)
+    n = 5000  # more than one chunk
+    colour = (rng.standard_normal((n, 3)) * np.exp(rng.uniform(-8, 8, (n, 3)))).astype(np.float32)
+    colour[:10] = 0.0
+    rays = np.concatenate([np.ones((n, 1)), rng.uniform(-0.6, 0.6, (n, 2))], axis=1)
+    got = contact_patch.regression_features(colour, rays, degree, 64.0)
+    assert got.flags.c_contiguous and np.array_equal(got, _reference_features(colour, rays, degree, 64.0))
+    assert contact_patch.regression_features(colour[:0], rays[:0], degree, 64.0).shape == (0, got.shape[1])
+    lateral = rng.standard_normal((n, 2)) * rng.uniform(0.0, 1.5, (n, 1))
+    lateral[:5] = [[0.0, 0.0], [1.0, 0.0], [0.0, -2.0], [np.sin(np.deg2rad(65.0)), 0.0], [1e-300, -1e-300]]
+    assert np.array_equal(contact_patch.lateral_to_normals(lateral), _reference_lateral_to_normals(lateral))
+
+
+def test_magnitude_adds_the_channels_as_numpy_did():
+    rng = np.random.default_rng(1)
+    smooth = (rng.standard_normal((H, W, 3)) * np.exp(rng.uniform(-10, 10, (H, W, 3)))).astype(np.float32)
+    assert np.array_equal(contact_patch._magnitude(smooth), np.sqrt(np.sum(smooth.astype(np.float64) ** 2, axis=-1)))

@@ -23,7 +23,9 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("bench", "identify"): ("bench_identify", "seconds per identification of the paper's triplets against the object library"),
     ("bench", "batch"): ("bench_batch", "start-up and per-scene seconds of one `estimate` call on the paper's triplets"),
     ("bench", "add-object"): ("bench_add_object", "seconds of `tactile6d add-object` on a mesh of about 20 000 faces"),
+    ("bench", "track"): ("bench_track", "frames per second of the tracker on the generated sequences (L = 3)"),
     ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
+    ("track",): ("track", "follow an object's pose over a stream of frames (numbered scene folders or a ROS 2 bag)"),
     ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),
     ("add-object",): ("add_object", "a mesh file of yours as a library object: check it, configure it, make its artifacts"),
 }

@@ -81,6 +81,11 @@ def scenes_file(artifacts_dir: str | Path, scene_set: str) -> Path:
     return Path(artifacts_dir) / "scenes" / f"{scene_set}.h5"
 
 
+def sequences_file(artifacts_dir: str | Path, name: str) -> Path:
+    """Tracking sequences with ground truth (stage make_sequences): ``tracking``."""
+    return Path(artifacts_dir) / "sequences" / f"{name}.h5"
+
+
 def run_dir(artifacts_dir: str | Path, scene_set: str, method: str) -> Path:
     """Outputs of select_tuples, optimize, rank for one scene set and method (ours, baseline)."""
     return Path(artifacts_dir) / "runs" / scene_set / method

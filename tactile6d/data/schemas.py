@@ -41,6 +41,13 @@ IMAGE_DATASETS = (
 SCENE_FIELDS = ("names", "objects", "T_world_object", "T_world_sensors", "images", "contact_points",
                 "contact_normals", "contact_types")
 
+# A tracking sequence set (tactile6d.sim.sequences): per sequence its name and object, the frame rate, and per
+# frame the object's pose, the sensor poses as reported and true, the images (Q, F, L, H, W, 3), whether each
+# sensor touches, its true contact point, normal, press depth and lift, and per sensor the kinematic bias drawn.
+SEQUENCE_FIELDS = ("names", "objects", "fps", "T_world_object", "T_world_sensors", "T_world_sensors_true", "images",
+                   "touching", "contact_points", "contact_normals", "depths", "lift_weights", "pose_bias_translation",
+                   "pose_bias_rotvec")
+
 # The estimation stages (select_tuples, optimize, rank) each carry these from scene to scene...
 CARRIED_FIELDS = ("names", "objects", "T_world_sensors", "failure")
 # ...the sensors' contacts (tactile6d.perception.contacts), per scene and sensor: points (S, L, 3), normals (S, L, 3),
@@ -70,6 +77,8 @@ SCHEMAS: dict[str, Schema] = {
         Schema("latents", 1, "encode_database", ("latents", "latent_nc", "angles")),
         # Version 2: sets may carry each sensor's own no-contact image (backgrounds) and how they were perturbed.
         Schema("scenes", 2, "make_scenes", SCENE_FIELDS),
+        # Tracking sequences: an object in a moving grasp, frame by frame.
+        Schema("sequences", 1, "make_sequences", SEQUENCE_FIELDS),
         # Candidate tuples per scene, with the selection's diagnostics and timings.
         Schema("tuples", 2, "select_tuples",
                CARRIED_FIELDS + CONTACT_FIELDS + PATCH_FIELDS

@@ -14,6 +14,7 @@ import numpy as np  # noqa: E402
 
 from tactile6d.core.geometry import transform_points  # noqa: E402
 from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, contact_points  # noqa: E402
+from tactile6d.evaluation.tracking_accuracy import true_runs  # noqa: E402
 
 SENSOR_COLOURS = ("tab:red", "tab:green", "tab:blue", "tab:orange", "tab:purple")
 
@@ -182,3 +183,40 @@ def reliability_figure(bins_by_set: dict[str, list[dict]], title: str):
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def tracking_figure(names: list[str], frames: list[dict], fps: float, lost_threshold: float):
+    """Positional error over time, one panel per sequence: the tracker's on every frame (line), single-shot
+    estimation's on the compared frames (dots), re-detections (ticks at the top), frames where a sensor's
+    image shows no contact (shaded) and the lost threshold (dashed). frames[q]: the stage evaluate_tracking's
+    per-frame record (``track_position_m``, ``single_frames``, ``single_position_m``, ``modes``, ``touching``)."""
+    n = len(names)
+    cols = 2 if n > 1 else 1
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 2.2 * rows), sharey=True, squeeze=False)
+    top = 100 * max(2.0 * lost_threshold, *(np.nanmax(f["single_position_m"] + f["track_position_m"]) for f in frames))
+    top = min(top, 10.0)
+    for ax, name, f in zip(axes.ravel(), names, frames):
+        t = np.arange(len(f["track_position_m"])) / fps
+        lifted = ~np.asarray(f["touching"], dtype=bool).all(axis=1)
+        for start, stop in true_runs(lifted):
+            ax.axvspan(t[start], t[stop - 1] + 1 / fps, color="0.9", lw=0)
+        ax.plot(t, 100 * np.asarray(f["track_position_m"]), color="tab:blue", lw=1.2, label="tracked")
+        ax.plot(np.asarray(f["single_frames"]) / fps, 100 * np.asarray(f["single_position_m"]), "o", ms=2.5,
+                color="tab:orange", label="single-shot")
+        redetected = [i for i, m in enumerate(f["modes"]) if m == "redetect"]
+        ax.plot(t[redetected], np.full(len(redetected), 0.95 * top), "v", ms=4, color="tab:red", label="re-detection")
+        ax.axhline(100 * lost_threshold, color="0.4", lw=0.8, ls="--")
+        ax.set_ylim(0, top)
+        ax.set_title(name, fontsize=8)
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("position error (cm)")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    axes[0, 0].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    return fig
+

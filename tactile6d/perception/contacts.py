@@ -24,7 +24,7 @@ import numpy as np
 
 from tactile6d.core import sensor
 from tactile6d.core.errors import InputError
-from tactile6d.perception.contact_patch import ContactPatch, depth_to_points
+from tactile6d.perception.contact_patch import ContactPatch, pixels_to_points
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ class Contacts:
 
         T_world_sensors (L, 4, 4). Each sensor read from its image gives up to ``max_per_sensor`` of its
         mask's pixels, evenly spread over the mask, lifted to the gel surface at their press depth
-        (``contact_patch.depth_to_points``). -> points (M, 3) m and the sensor of each (M,) int.
+        (``contact_patch.pixels_to_points``). -> points (M, 3) m and the sensor of each (M,) int.
         """
         if not self.observed or max_per_sensor < 1:
             return np.zeros((0, 3)), np.zeros(0, dtype=int)
@@ -70,7 +70,7 @@ class Contacts:
             if len(rows) == 0:
                 continue
             pick = np.unique(np.linspace(0, len(rows) - 1, min(max_per_sensor, len(rows))).round().astype(int))
-            local = depth_to_points(self.depths[i])[rows[pick], cols[pick]]
+            local = pixels_to_points(self.depths[i], rows[pick], cols[pick])
             points.append(local @ T[i, :3, :3].T + T[i, :3, 3])
             owners.append(np.full(len(pick), i))
         if not points:

@@ -1,0 +1,166 @@
+"""``tactile6d track``: follow an object's pose over a stream of frames (``tactile6d.estimation.tracker``).
+
+Input, one of:
+
+- ``--sequence DIR``: frames as numbered scene folders ``DIR/000000``, ``DIR/000001``, ... (each in the
+  paper's triplet layout: ``poses_sensors.txt`` and ``Image_heatmap_<i>.png``), the sensors' no-contact
+  images as ``DIR/background_<i>.png`` (or per frame folder), timestamps in ``DIR/frames.json``
+  (``tactile6d.data.sequence_dirs``);
+- ``--bag FILE --images TOPIC [TOPIC ...]``: a ROS 2 bag (a rosbag2 folder, or one .mcap / .db3 file), one
+  ``sensor_msgs/Image`` (rgb8, bgr8) or ``CompressedImage`` topic per sensor; the sensor poses from the
+  bag's TF tree (``--frames FRAME [FRAME ...]``: each sensor's TF frame, in the order of ``--images``,
+  looked up from ``--world-frame``) or fixed (``--poses FILE``: one ``x y z ax ay az angle`` line per
+  sensor). Frames follow the first image topic; the others are matched within ``--sync-tolerance``
+  seconds (``tactile6d.data.rosbag_io``).
+
+Output: one line per frame on stdout: ``<frame> <stamp> <mode> x y z ax ay az angle <confidence>`` (mode
+``redetect``, ``update`` or ``hold``; stamp and confidence ``-`` when unknown), or with ``--json`` one
+JSON object per frame (pose as a 4x4 matrix, mode, the re-detection's reason, confidence, which sensors
+touch, the fit terms, seconds). ``--bop FILE`` also writes a BOP result CSV (``scene_id`` from
+``--scene-id``, ``im_id`` the frame, ``obj_id`` the object's YCB-Video id or ``--obj-id``, score the
+confidence, t in mm, time the frame's seconds); ``--out-bag PATH`` writes the poses as
+``geometry_msgs/PoseStamped`` (``--out-topic``). Frames without a pose yet are left out of both.
+
+A summary goes to stderr at the end (frames, re-detections, median seconds per updated frame).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from tactile6d.cli.estimate import split_overrides, write
+from tactile6d.cli.objects import KnownObjects
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import InputError
+from tactile6d.core.geometry import pose_to_line, text_to_poses
+from tactile6d.data import bop, rosbag_io, sequence_dirs
+from tactile6d.data.hdf5 import read_background_images
+from tactile6d.estimation.estimator import Estimator
+from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.estimation.tracker import TrackedFrame, Tracker, TrackSettings
+from tactile6d.perception import photometric
+from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="tactile6d track", description=__doc__.split("\n")[0],
+        usage=("tactile6d track --object NAME --sequence DIR [options] [key=value ...]\n"
+               "       tactile6d track --object NAME --bag FILE --images TOPIC [TOPIC ...] "
+               "(--frames FRAME [FRAME ...] | --poses FILE) [options] [key=value ...]"))
+    parser.add_argument("--object", required=True, help="the object held (see `tactile6d estimate`'s objects)")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--sequence", metavar="DIR", help="numbered scene folders, one per frame")
+    source.add_argument("--bag", metavar="FILE", help="a ROS 2 bag (folder, .mcap or .db3)")
+    parser.add_argument("--images", nargs="+", metavar="TOPIC", help="with --bag: one image topic per sensor")
+    poses = parser.add_mutually_exclusive_group()
+    poses.add_argument("--frames", nargs="+", metavar="FRAME", help="with --bag: each sensor's TF frame")
+    poses.add_argument("--poses", metavar="FILE", help="with --bag: fixed sensor poses (poses_sensors.txt format)")
+    parser.add_argument("--world-frame", default="world", help="with --frames: the TF frame poses are given in")
+    parser.add_argument("--sync-tolerance", type=float, default=0.02,
+                        help="with --bag: seconds within which the other sensors' images join a frame")
+    parser.add_argument("--fps", type=float, default=30.0,
+                        help="frame rate assumed for stamps when the input has none (a sequence without frames.json)")
+    parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
+                        help="the sensors' no-contact image(s): one for every sensor or one per sensor (default: "
+                             "the sequence folder's background_<i>.png, else render.background)")
+    parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
+    parser.add_argument("--json", action="store_true", help="one JSON object per frame (JSON Lines)")
+    parser.add_argument("--bop", metavar="FILE", help="also write a BOP result CSV")
+    parser.add_argument("--scene-id", type=int, default=0, help="BOP scene_id of the stream (default 0)")
+    parser.add_argument("--obj-id", type=int, default=None, help="BOP obj_id (default: the YCB-Video id of --object)")
+    parser.add_argument("--out-bag", metavar="PATH", help="also write the poses as geometry_msgs/PoseStamped")
+    parser.add_argument("--out-topic", default=rosbag_io.POSE_TOPIC, help="topic of --out-bag's poses")
+    parser.add_argument("overrides", nargs="*", help="config overrides key=value (e.g. track.redetect_every=30)")
+    args = parser.parse_args(argv)
+    for name in ("images", "frames"):  # greedy lists may have swallowed overrides
+        words, args.overrides = split_overrides(getattr(args, name), list(args.overrides))
+        setattr(args, name, words)
+    args.background, args.overrides = split_overrides(args.background, list(args.overrides))
+    if args.bag is not None:
+        if not args.images:
+            parser.error("--bag needs --images TOPIC [TOPIC ...]")
+        if (args.frames is None) == (args.poses is None):
+            parser.error("--bag needs the sensor poses: --frames FRAME [FRAME ...] (TF) or --poses FILE (fixed)")
+    elif args.images or args.frames or args.poses:
+        parser.error("--images, --frames and --poses go with --bag")
+    if args.bop is not None:
+        args.obj_id = bop.object_name_to_bop_id(args.object, args.obj_id)  # an unknown object fails here, not at the end
+    return args
+
+
+Frame = tuple[int, float | None, np.ndarray, np.ndarray, np.ndarray | None]  # index, stamp, T, images, backgrounds
+
+
+def frames_of(args: argparse.Namespace) -> Iterator[Frame]:
+    """The input's frames in order, from a sequence folder or a bag."""
+    if args.sequence is not None:
+        yield from sequence_dirs.iter_sequence_dir(args.sequence)
+        return
+    fixed = None
+    if args.poses is not None:
+        path = Path(args.poses)
+        if not path.is_file():
+            raise InputError(f"--poses {path} not found")
+        fixed = text_to_poses(path.read_text())
+    frames = rosbag_io.read_bag_frames(args.bag, args.images, args.frames, args.world_frame, fixed,
+                                       args.sync_tolerance)
+    for k, frame in enumerate(frames):
+        yield k, frame.stamp, frame.T_world_sensors, frame.images, None
+
+
+def frame_line(index: int, stamp: float | None, answer: TrackedFrame) -> str:
+    stamp_text = "-" if stamp is None else f"{stamp:.6f}"
+    confidence = "-" if answer.confidence is None else f"{answer.confidence:.3f}"
+    pose = "nan" if not np.isfinite(answer.pose).all() else pose_to_line(answer.pose)
+    return f"{index} {stamp_text} {answer.mode} {pose} {confidence}"
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    cfg = compose_config(args.overrides)
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
+    known = KnownObjects(artifacts, cfg)
+    found = known.require_artifacts(args.object, baseline=cfg.select.method != "ours")
+    background = read_background_images(args.background) if args.background else None
+    estimator = Estimator.from_artifacts(args.object, known.artifacts, cfg, background=background,
+                                         objects_dir=found.objects_dir)
+    stamps, poses, rows, seconds, modes = [], [], [], [], []
+    with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", photometric.LightWarning)
+        warnings.simplefilter("once", UnderdeterminedPoseWarning)
+        for index, stamp, T, images, frame_backgrounds in frames_of(args):
+            answer = tracker.update(T, images, None if background is not None else frame_backgrounds)
+            if args.json:
+                write(json.dumps({"frame": index, "stamp": stamp, **answer.to_dict()}), sys.stdout)
+            else:
+                write(frame_line(index, stamp, answer), sys.stdout)
+            seconds.append(answer.seconds)
+            modes.append(answer.mode)
+            if np.isfinite(answer.pose).all():
+                stamps.append(index / args.fps if stamp is None else stamp)
+                poses.append(answer.pose)
+                score = 1.0 if answer.confidence is None else answer.confidence
+                rows.append(bop.BopRow(args.scene_id, index, args.obj_id or 0, score, answer.pose, answer.seconds))
+    for w in caught:
+        write(f"warning: {' '.join(str(w.message).split())}", sys.stderr)
+    if not modes:
+        raise InputError("the input holds no frame")
+    if args.bop is not None:
+        bop.write_bop_csv(args.bop, rows)
+    if args.out_bag is not None:
+        rosbag_io.write_pose_bag(args.out_bag, np.array(stamps), np.array(poses).reshape(-1, 4, 4),
+                                 args.world_frame, args.out_topic)
+    updates = [s for s, m in zip(seconds, modes) if m == "update"]
+    median = f"{1e3 * np.median(updates):.1f} ms" if updates else "-"
+    write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held; median "
+          f"update {median}", sys.stderr)
+    return 0

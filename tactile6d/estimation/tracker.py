@@ -1,0 +1,416 @@
+"""Tracking: the object's pose followed over a stream of frames, between single-shot estimates.
+
+A hand that holds an object keeps touching it, and its DIGITs stream 30-60 frames per second while the
+fingers roll and slide. Estimating every frame from scratch (``Estimator.estimate``: select, optimize,
+rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose instead:
+
+- **hypotheses**: a re-detection (a single-shot estimate) gives the poses that explain the contacts about
+  equally well (``Estimate.distinct``: a box touched on its large faces has several); up to ``hypotheses``
+  of them are followed, each with its *evidence*, a running mean of its score over about
+  ``evidence_frames`` frames. The one with the least evidence is reported.
+- **update** (every frame): the sensors' contacts are read from the new images (their contact patches,
+  the images read on ``threads`` threads), and each hypothesis's last pose (the reported one's also moved
+  on by its last motion: constant velocity) is refined against them as the single-shot ranking refines
+  its candidates (``refine.refine_poses_and_sensors``: each sensor's small pose error estimated beside the
+  object's pose, ``sensors.pose_sigma_mm``/``_deg``) and scored as the ranking scores (surface fit +
+  penetration beyond the sensor poses' allowance + the corrections' cost + render-and-compare). Only the
+  sensors whose image shows contact are fitted; every sensor's image is compared, so a pose that presses
+  a sensor whose image shows none pays for it.
+- **fit check**: a hypothesis whose refined pose does not fit the contacts (mean point-to-plane residual
+  over ``max_residual``), disagrees with the images (render-and-compare cost over ``max_agreement``) or
+  penetrates a sensor deeper than the limit (the larger of the ranking's allowance and the last
+  re-detection's best pose's penetration, plus ``penetration_margin``) is dropped; two that reach the same
+  pose (``rank.dedup_*``) become one.
+- **re-detection**: at the first frame and when every hypothesis is dropped, the frame is estimated from
+  scratch and its poses replace the hypotheses; every ``redetect_every`` frames and on request, the
+  frame is estimated from scratch too and its poses join them, so that a track that settled on a wrong
+  pose which fits as well (the evidence cannot tell) is offered the right one again. The tracker never
+  returns an updated pose that penetrates a sensor beyond the limit.
+- a frame where no image shows contact holds the last pose (nothing to fit), as does a re-detection that
+  matches nothing (then the next frame is re-detected again).
+
+Confidence per frame: the estimator's calibrated confidence (``confidence.ConfidenceModel``, P(ADI < 1
+cm) of a single-shot estimate) of the last re-detection, carried between re-detections; None without a
+calibrated model. ``TrackedFrame`` also carries the fit terms, so a caller can apply a stricter check.
+
+Light: images are brought to their no-contact images' light as ``Estimator.estimate`` does, but the
+fit of the light (``photometric.fit_light``, 30 ms for three images) is made at re-detection and every
+``light_every`` frames only, and applied in between (a lookup table): the light does not drift at 30
+frames per second.
+
+Settings: config section ``track`` (conf/track/default.yaml); the estimator's own sections (``rank``,
+``sensors``) for the refinement and the score. Units: metres, radians; poses 4x4 float64.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import ConfigError, InputError, NoMatch
+from tactile6d.core.geometry import invert_pose, rotation_angle
+from tactile6d.estimation import rank as rank_step
+from tactile6d.estimation import refine as refinement
+from tactile6d.estimation.estimator import Estimate, Estimator
+from tactile6d.perception import photometric
+from tactile6d.perception.contact_patch import image_to_patch
+from tactile6d.perception.contacts import Contacts, patches_to_contacts
+from tactile6d.perception.encode import sensor_background
+
+MODES = ("redetect", "update", "hold")
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """The ``track`` config section (conf/track/default.yaml documents each key); lengths in metres."""
+
+    refine_iterations: int
+    predict: bool
+    hypotheses: int
+    evidence_frames: int
+    max_residual: float
+    max_agreement: float
+    penetration_margin: float
+    redetect_every: int
+    light_every: int
+    threads: int
+
+    def __post_init__(self) -> None:
+        if min(self.refine_iterations, self.threads, self.hypotheses, self.evidence_frames) < 1:
+            raise ConfigError(f"track.refine_iterations, threads, hypotheses and evidence_frames must be >= 1, got "
+                              f"{self.refine_iterations}, {self.threads}, {self.hypotheses}, {self.evidence_frames}")
+        if min(self.max_residual, self.max_agreement, self.penetration_margin) < 0:
+            raise ConfigError("track.max_residual, max_agreement and penetration_margin must be >= 0")
+        if self.redetect_every < 0 or self.light_every < 0:
+            raise ConfigError("track.redetect_every and track.light_every must be >= 0 (0: never)")
+
+    @classmethod
+    def from_cfg(cls, section: Mapping) -> TrackSettings:
+        names = list(cls.__dataclass_fields__)
+        missing = [n for n in names if n not in section]
+        if missing:
+            raise ConfigError(f"config section track lacks keys {missing}")
+        return cls(**{n: section[n] for n in names})
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    """The tracker's answer for one frame.
+
+    pose (4, 4) ``T_world_object``, the reported hypothesis's (NaN before any pose was found); mode:
+    ``redetect`` (estimated from scratch), ``update`` (the hypotheses refined) or ``hold`` (the last pose
+    kept: no image showed contact, or the re-detection that ``reason`` asked for matched nothing); reason:
+    why this frame was re-detected (``start``, ``request``, ``periodic``, ``fit``) or None; confidence: the
+    calibrated P(ADI < 1 cm) of the last re-detection (module docstring), None without a confidence model;
+    touching (L,) bool: the sensors whose image shows contact; residual (m): mean point-to-plane residual
+    of the touching sensors' contacts; agreement: render-and-compare cost (mean over sensors of 1 - mask
+    IoU and the share of untouched gel pressed); penetration (m): the deepest sensor penetration, through
+    the corrected sensor poses (on a re-detected frame: the single-shot best's, through the poses given);
+    residual and agreement are NaN on a re-detected or held frame. fit_ok: False only on a re-detection
+    that matched nothing; seconds: wall-clock time of the frame; estimate: the single-shot ``Estimate`` of a
+    re-detected frame, else None.
+    """
+
+    pose: np.ndarray
+    mode: str
+    reason: str | None
+    confidence: float | None
+    touching: np.ndarray
+    residual: float
+    agreement: float
+    penetration: float
+    fit_ok: bool
+    seconds: float
+    estimate: Estimate | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the pose as nested lists, the rest as numbers."""
+        return {
+            "pose": self.pose.tolist(),
+            "mode": self.mode,
+            "reason": self.reason,
+            "confidence": self.confidence,
+            "touching": self.touching.tolist(),
+            "residual": self.residual,
+            "agreement": self.agreement,
+            "penetration": self.penetration,
+            "fit_ok": self.fit_ok,
+            "seconds": self.seconds,
+        }
+
+
+@dataclass(frozen=True)
+class _Scored:
+    """Refined candidate poses and their score terms (P candidates)."""
+
+    poses: np.ndarray  # (P, 4, 4)
+    scores: np.ndarray  # (P,)
+    residual: np.ndarray  # (P,) m
+    agreement: np.ndarray  # (P,)
+    penetration: np.ndarray  # (P,) m
+
+
+class Tracker:
+    """Follows one object's pose over frames (module docstring).
+
+    estimator: the object's ``Estimator`` (its settings give the refinement and the score); settings:
+    the ``track`` section (``TrackSettings``; default: conf/'s). Feed frames in time order to ``update``;
+    ``reset`` forgets the track (the next frame is re-detected). Holds a thread pool: use it as a
+    context manager or call ``close``.
+    """
+
+    def __init__(self, estimator: Estimator, settings: TrackSettings | None = None):
+        if not estimator.settings.rank.refine:
+            raise InputError("tracking refines the last pose: it needs rank.refine (and the object's surface)")
+        self.estimator = estimator
+        self.settings = settings if settings is not None else TrackSettings.from_cfg(compose_config()["track"])
+        self._pool = ThreadPoolExecutor(self.settings.threads) if self.settings.threads > 1 else None
+        self.reset()
+
+    @classmethod
+    def from_artifacts(cls, object_name: str, artifacts_dir: str | Path, cfg: Mapping | None = None,
+                       **estimator_kwargs) -> Tracker:
+        """The tracker of one object from an artifacts directory (``Estimator.from_artifacts``, whose
+        keyword arguments pass through); cfg: the composed config (default: conf/'s)."""
+        cfg = cfg if cfg is not None else compose_config()
+        estimator = Estimator.from_artifacts(object_name, artifacts_dir, cfg, **estimator_kwargs)
+        return cls(estimator, TrackSettings.from_cfg(cfg["track"]))
+
+    def reset(self) -> None:
+        """Forget the track: the next frame is estimated from scratch."""
+        self._poses: list[np.ndarray] = []  # the poses returned so far (the last two are kept)
+        self._hypotheses: list[_Hypothesis] = []  # the poses followed, the one with the least evidence reported
+        self._penetration_limit = np.inf  # m: the deepest penetration an updated pose may have
+        self._confidence: float | None = None
+        self._light: list[photometric.LightFit] | None = None
+        self._frames_since_light = 0
+        self._frames_since_redetect = 0
+
+    @property
+    def pose(self) -> np.ndarray | None:
+        """The last pose returned (4, 4), or None before the first."""
+        return self._poses[-1] if self._poses else None
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> Tracker:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def update(self, T_world_sensors, images, backgrounds=None, redetect: bool = False) -> TrackedFrame:
+        """One frame: sensors at T_world_sensors (L, 4, 4) with images (L, 320, 240, 3) uint8 RGB; L may
+        change from frame to frame. backgrounds: the sensors' no-contact images for this frame, as for
+        ``Estimator.estimate``; redetect: estimate this frame from scratch. -> ``TrackedFrame``."""
+        start = time.perf_counter()
+        est = self.estimator
+        T, images, per_sensor = est._checked_scene(T_world_sensors, images, backgrounds)
+        reason = self._redetect_reason(redetect)
+        if reason == "start":
+            return self._redetect(T, images, backgrounds, reason, start)
+        if self._light_is_stale(len(T)):
+            images, self._light = est._aligned(images, per_sensor)
+            self._frames_since_light = 0
+        else:
+            images = self._apply_light(images)
+        contacts = self._read_contacts(T, images, per_sensor)
+        touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
+        self._frames_since_redetect += 1
+        self._frames_since_light += 1
+        if not touching.any():
+            return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
+        answer = self._follow(T, images, backgrounds, contacts, touching, start)
+        if reason is not None and answer.mode == "update":
+            # Requested or periodic: the frame's single-shot poses join the hypotheses followed, which were
+            # scored on this frame too; the evidence decides between them from here on.
+            return self._redetect(T, images, backgrounds, reason, start, keep=True)
+        return answer
+
+    # --- the steps ---------------------------------------------------------------------------------------
+
+    def _redetect_reason(self, requested: bool) -> str | None:
+        if not self._hypotheses:
+            return "start"
+        if requested:
+            return "request"
+        if self.settings.redetect_every and self._frames_since_redetect >= self.settings.redetect_every:
+            return "periodic"
+        return None
+
+    def _light_is_stale(self, n_sensors: int) -> bool:
+        """Whether the light is fitted anew this frame: ``light_every`` frames on, or a sensor count
+        other than the fits'."""
+        if self._light is None:
+            return False
+        if len(self._light) != n_sensors:
+            return True
+        return bool(self.settings.light_every) and self._frames_since_light >= self.settings.light_every
+
+    def _apply_light(self, images: np.ndarray) -> np.ndarray:
+        """The images under their no-contact images' light, by the last fits where they were applied."""
+        if self._light is None or len(self._light) != len(images):
+            return images
+        return np.stack([photometric.apply_light(im, fit) if fit.applied else im
+                         for im, fit in zip(images, self._light)])
+
+    def _read_contacts(self, T: np.ndarray, images: np.ndarray, per_sensor: np.ndarray | None) -> Contacts:
+        """The sensors' contacts (``Estimator.contacts``), the images' patches read in parallel."""
+        est = self.estimator
+        if not est.settings.select.reads_patches or self._pool is None:
+            return est._read_contacts(T, images, per_sensor)
+        model = est.patch_model
+        patches = list(self._pool.map(lambda i: image_to_patch(images[i], sensor_background(per_sensor, i), model),
+                                      range(len(images))))
+        return patches_to_contacts(patches, T)
+
+    def _follow(self, T: np.ndarray, images, backgrounds, contacts: Contacts, touching: np.ndarray,
+                start: float) -> TrackedFrame:
+        """Each hypothesis refined and scored against this frame; those failing the fit check dropped, the
+        rest's evidence updated; the one with the least evidence reported (a re-detection when none is left)."""
+        s = self.settings
+        candidates, owners = [], []
+        leader = self._leader()
+        for k, h in enumerate(self._hypotheses):
+            candidates.append(h.poses[-1])
+            owners.append(k)
+            if k == leader and s.predict and len(h.poses) == 2:  # constant velocity: the last motion again
+                candidates.append(h.poses[-1] @ invert_pose(h.poses[-2]) @ h.poses[-1])
+                owners.append(k)
+        scored = self._score(np.stack(candidates), T, contacts, touching)
+        owners = np.array(owners)
+        kept = []
+        for k, h in enumerate(self._hypotheses):
+            mine = np.flatnonzero(owners == k)
+            best = int(mine[np.argmin(scored.scores[mine])])
+            if not (scored.residual[best] <= s.max_residual and scored.agreement[best] <= s.max_agreement
+                    and scored.penetration[best] <= self._penetration_limit):
+                continue  # this frame rules it out
+            h.poses = [h.poses[-1], scored.poses[best]]
+            h.evidence += (scored.scores[best] - h.evidence) / s.evidence_frames
+            h.terms = (scored.residual[best], scored.agreement[best], scored.penetration[best])
+            kept.append(h)
+        self._hypotheses = _merged(kept, self.estimator.settings.rank)
+        if not self._hypotheses:
+            return self._redetect(T, images, backgrounds, "fit", start)
+        h = self._hypotheses[self._leader()]
+        return self._answer(h.poses[-1], "update", None, touching, *h.terms, True, start)
+
+    def _leader(self) -> int:
+        """The hypothesis reported: the least evidence (running mean score)."""
+        return int(np.argmin([h.evidence for h in self._hypotheses]))
+
+    def _score(self, poses: np.ndarray, T: np.ndarray, contacts: Contacts, touching: np.ndarray) -> _Scored:
+        """The candidate poses refined against the touching sensors' contacts and scored as
+        ``rank.rank`` re-scores its candidates (surface fit, penetration beyond the allowance, the sensor
+        corrections' cost, render-and-compare over every sensor)."""
+        est = self.estimator
+        r, sensors = est.settings.rank, est.settings.sensors
+        on = np.flatnonzero(touching)
+        sub = _select_sensors(contacts, on)
+        w = float(r.refine_normal_weight)
+        fit = refinement.SurfaceFit(est.surface, sub.points, sub.normals, w, sub.offsets(r.refine_offset))
+        extra, owners = sub.patch_points(T[on], int(r.refine_patch_points))
+        per_sensor = np.bincount(owners, minlength=len(on))[owners]
+        extra_w = float(r.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
+        correction = np.zeros(len(poses))
+        if sensors.exact:
+            poses = refinement.refine_poses(fit, poses, self.settings.refine_iterations, patch_points=extra,
+                                            patch_weights=extra_w)
+            seen = np.repeat(poses[:, None], len(on), axis=1)
+        else:
+            sigma_contact, sigma_angle = sensors.correction_sigmas
+            poses, seen = refinement.refine_poses_and_sensors(
+                fit, poses, sigma_contact, sigma_angle, n_iterations=self.settings.refine_iterations,
+                patch_points=extra, patch_weights=extra_w, patch_owners=owners)
+            correction = refinement.sensor_corrections_cost(poses, seen, sub.points, sigma_contact, sigma_angle)
+        distance, angle = refinement.surface_losses(fit, seen)
+        # Every sensor sees the object through its correction when touching, as given otherwise.
+        seen_all = np.repeat(poses[:, None], len(T), axis=1)
+        seen_all[:, on] = seen
+        depths = rank_step.seen_penetrations(est.penetration_model, seen_all, T)
+        scores = (distance + w * angle + rank_step.penetration_cost(depths, sensors.contact_sigma)
+                  + r.pose_correction_weight * correction)
+        agreement = np.zeros(len(poses))
+        if contacts.observed:
+            agreement = rank_step.agreement_cost(est.mesh, seen_all, T, contacts, r)
+            scores = scores + r.agreement_weight * agreement
+        return _Scored(poses, scores, distance, agreement, depths.max(axis=1))
+
+    def _redetect(self, T: np.ndarray, images, backgrounds, reason: str, start: float, keep: bool = False
+                  ) -> TrackedFrame:
+        """The frame estimated from scratch; the light's fits and the confidence are taken from it. Its poses
+        that explain the contacts about equally well become the hypotheses followed, or with ``keep`` join
+        those followed so far (the ``hypotheses`` with the least evidence are kept). When it matches nothing
+        (``NoMatch``: e.g. a lifted sensor's image read as a contact of no database image), the last pose is
+        held, marked as failing the fit check, and the next frame tries again."""
+        try:
+            estimate = self.estimator.estimate(T, images, backgrounds)
+        except NoMatch:
+            touching = np.zeros(len(T), dtype=bool)
+            return self._answer(self.pose, "hold", reason, touching, np.nan, np.nan, np.nan, False, start)
+        self._light = estimate.light
+        self._frames_since_light = 0
+        self._frames_since_redetect = 0
+        self._confidence = estimate.confidence
+        if len(estimate.poses):
+            # The poses that explain the contacts about equally well are all followed, until frames tell
+            # them apart; without a confidence model, the best alone.
+            chosen = [0] if estimate.distinct is None else list(estimate.distinct)
+            new = [_Hypothesis([estimate.poses[i]], float(estimate.scores[i])) for i in chosen]
+            both = _merged((self._hypotheses if keep else []) + new, self.estimator.settings.rank)
+            self._hypotheses = both[: self.settings.hypotheses]
+            self._penetration_limit = (max(self.estimator.settings.sensors.contact_sigma,
+                                           float(estimate.penetrations[0].max())) + self.settings.penetration_margin)
+        contacts = estimate.contacts
+        touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
+        penetration = float(estimate.penetrations[0].max()) if len(estimate.poses) else np.nan
+        pose = self._hypotheses[self._leader()].poses[-1] if self._hypotheses else None
+        return self._answer(pose, "redetect", reason, touching, np.nan, np.nan, penetration, True, start, estimate)
+
+    def _answer(self, pose, mode, reason, touching, residual, agreement, penetration, fit_ok, start,
+                estimate=None) -> TrackedFrame:
+        pose = np.full((4, 4), np.nan) if pose is None else np.asarray(pose, dtype=np.float64)
+        self._poses = (self._poses + [pose])[-2:]
+        return TrackedFrame(pose, mode, reason, self._confidence, touching, float(residual), float(agreement),
+                            float(penetration), fit_ok, time.perf_counter() - start, estimate)
+
+
+@dataclass
+class _Hypothesis:
+    """One pose followed: its last two poses (4, 4) and its evidence, a running mean of its score (m) over
+    about ``evidence_frames`` frames; terms: its last fit terms (residual m, agreement, penetration m)."""
+
+    poses: list[np.ndarray]
+    evidence: float
+    terms: tuple[float, float, float] = (np.nan, np.nan, np.nan)
+
+
+def _merged(hypotheses: list[_Hypothesis], rank) -> list[_Hypothesis]:
+    """The hypotheses without those that came within ``rank.dedup_translation`` and ``dedup_rotation`` of
+    one with less evidence (two that reach the same pose are one)."""
+    order = sorted(range(len(hypotheses)), key=lambda k: hypotheses[k].evidence)
+    kept: list[_Hypothesis] = []
+    for k in order:
+        T = hypotheses[k].poses[-1]
+        if not any(np.linalg.norm(T[:3, 3] - o.poses[-1][:3, 3]) <= rank.dedup_translation
+                   and rotation_angle(T[:3, :3], o.poses[-1][:3, :3]) <= np.radians(rank.dedup_rotation) for o in kept):
+            kept.append(hypotheses[k])
+    return kept
+
+
+def _select_sensors(contacts: Contacts, on: np.ndarray) -> Contacts:
+    """The contacts of the sensors ``on`` (K,) only."""
+    pick = (lambda a: None if a is None else a[on])
+    return Contacts(contacts.points[on], contacts.normals[on], contacts.from_patch[on], pick(contacts.masks),
+                    pick(contacts.depths))
+
