@@ -43,6 +43,10 @@ PAGE = """Generated on a day.
 
 | o |
 
+### Tracking: following the object over frames (generated sequences)
+
+![tracking error over time](figures/tracking_error.png)
+
 ### Ablation: each switch, L = 1, 2, 3 sensors
 
 | d |
@@ -58,6 +62,7 @@ def test_the_readme_gets_the_headline_sections_and_a_link_to_the_rest():
     assert body.startswith("Generated on a day.")
     assert "| a | b |" in body and "](reports/figures/x.png)" in body and "| e |" in body and "| r |" in body
     assert "](reports/figures/reliability.png)" in body and "| o |" in body
+    assert "](reports/figures/tracking_error.png)" in body
     assert "| c |" not in body and "| d |" not in body and "| stage | seconds |" in body
     assert "on [reports/results.md](reports/results.md): Per object, Ablation." in body
     assert body.index("The paper's 40") < body.index("Off-axis")

@@ -109,7 +109,10 @@ def frames_of(args: argparse.Namespace) -> Iterator[Frame]:
         path = Path(args.poses)
         if not path.is_file():
             raise InputError(f"--poses {path} not found")
-        fixed = text_to_poses(path.read_text())
+        try:
+            fixed = text_to_poses(path.read_text())
+        except ValueError as exc:
+            raise InputError(f"--poses {path}: {exc}") from exc
     frames = rosbag_io.read_bag_frames(args.bag, args.images, args.frames, args.world_frame, fixed,
                                        args.sync_tolerance)
     for k, frame in enumerate(frames):

@@ -130,19 +130,24 @@ class TrackedFrame:
     estimate: Estimate | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
-        """JSON-ready: the pose as nested lists, the rest as numbers."""
+        """JSON-ready: the pose as nested lists (None before any pose), the rest as numbers, None where NaN."""
         return {
-            "pose": self.pose.tolist(),
+            "pose": self.pose.tolist() if np.isfinite(self.pose).all() else None,
             "mode": self.mode,
             "reason": self.reason,
             "confidence": self.confidence,
             "touching": self.touching.tolist(),
-            "residual": self.residual,
-            "agreement": self.agreement,
-            "penetration": self.penetration,
+            "residual": _number(self.residual),
+            "agreement": _number(self.agreement),
+            "penetration": _number(self.penetration),
             "fit_ok": self.fit_ok,
             "seconds": self.seconds,
         }
+
+
+def _number(value: float) -> float | None:
+    """A float for JSON: None for NaN (not a JSON number)."""
+    return None if np.isnan(value) else float(value)
 
 
 @dataclass(frozen=True)
@@ -191,6 +196,7 @@ class Tracker:
         self._light: list[photometric.LightFit] | None = None
         self._frames_since_light = 0
         self._frames_since_redetect = 0
+        self._requested = False
 
     @property
     def pose(self) -> np.ndarray | None:
@@ -215,7 +221,10 @@ class Tracker:
         start = time.perf_counter()
         est = self.estimator
         T, images, per_sensor = est._checked_scene(T_world_sensors, images, backgrounds)
-        reason = self._redetect_reason(redetect)
+        self._frames_since_redetect += 1
+        self._frames_since_light += 1
+        self._requested = self._requested or redetect  # a request on a frame without contact waits for one
+        reason = self._redetect_reason()
         if reason == "start":
             return self._redetect(T, images, backgrounds, reason, start)
         if self._light_is_stale(len(T)):
@@ -225,8 +234,6 @@ class Tracker:
             images = self._apply_light(images)
         contacts = self._read_contacts(T, images, per_sensor)
         touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
-        self._frames_since_redetect += 1
-        self._frames_since_light += 1
         if not touching.any():
             return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
         answer = self._follow(T, images, backgrounds, contacts, touching, start)
@@ -238,10 +245,11 @@ class Tracker:
 
     # --- the steps ---------------------------------------------------------------------------------------
 
-    def _redetect_reason(self, requested: bool) -> str | None:
+    def _redetect_reason(self) -> str | None:
+        """Why this frame is estimated from scratch: no hypothesis yet, a pending request, or the period."""
         if not self._hypotheses:
             return "start"
-        if requested:
+        if self._requested:
             return "request"
         if self.settings.redetect_every and self._frames_since_redetect >= self.settings.redetect_every:
             return "periodic"
@@ -358,6 +366,12 @@ class Tracker:
         except NoMatch:
             touching = np.zeros(len(T), dtype=bool)
             return self._answer(self.pose, "hold", reason, touching, np.nan, np.nan, np.nan, False, start)
+        contacts = estimate.contacts
+        touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
+        if not touching.any():
+            # No image shows contact: the estimate stands on the sensors' landmarks alone, not on the object.
+            return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
+        self._requested = False
         self._light = estimate.light
         self._frames_since_light = 0
         self._frames_since_redetect = 0
@@ -371,8 +385,6 @@ class Tracker:
             self._hypotheses = both[: self.settings.hypotheses]
             self._penetration_limit = (max(self.estimator.settings.sensors.contact_sigma,
                                            float(estimate.penetrations[0].max())) + self.settings.penetration_margin)
-        contacts = estimate.contacts
-        touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
         penetration = float(estimate.penetrations[0].max()) if len(estimate.poses) else np.nan
         pose = self._hypotheses[self._leader()].poses[-1] if self._hypotheses else None
         return self._answer(pose, "redetect", reason, touching, np.nan, np.nan, penetration, True, start, estimate)

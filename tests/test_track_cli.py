@@ -1,0 +1,249 @@
+"""``tactile6d track`` on a few generated frames of prim_box (artifacts made by the real stages): numbered scene
+folders, a ROS 2 bag with TF or fixed sensor poses, the BOP CSV and pose bag it writes, and its errors.
+
+The baseline (``select.method=baseline``: every database point, no image read) keeps this fast and needs no
+autoencoder; what is checked here is the command's input and output, the tracker itself in test_tracker.py."""
+
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from stages import prepare_object, sample_surface
+from tactile6d import cli
+from tactile6d.core import geometry as g
+from tactile6d.data import bop, layout, rosbag_io, sequence_dirs
+from tactile6d.data.hdf5 import read_artifact
+from tactile6d.data.object_artifacts import load_mesh
+from tactile6d.sim import sequences, surface_sampling
+from tactile6d.sim.render import DigitRenderer
+
+OBJECT = "prim_box"
+F = 4  # frames
+FPS = 30.0
+TOPICS = ["/digit0/image", "/digit1/image", "/digit2/image"]
+FRAMES = ["digit_0", "digit_1", "digit_2"]
+NO_CONTACT = np.broadcast_to(np.array([120, 128, 124], np.uint8), (320, 240, 3))  # RGB; a grey one is refused
+BASELINE = ["select.method=baseline", "select.N=500"]
+
+
+@pytest.fixture(scope="module")
+def artifacts(tmp_path_factory):
+    """prim_box's object.h5 and surface.h5 (M = 500), made by the stages' own main()."""
+    root = tmp_path_factory.mktemp("artifacts")
+    common = ["--object", OBJECT, f"paths.artifacts_dir={root}"]
+    assert prepare_object.main(common + ["prepare.collision=hull", "prepare.n_metric_points=200"]) == 0
+    assert sample_surface.main(common + ["sample.M=500"]) == 0
+    return root
+
+
+@pytest.fixture(scope="module")
+def recording(artifacts, tmp_path_factory):
+    """F frames of prim_box in a moving 3-sensor grasp, rendered, written as numbered scene folders and as a ROS 2
+    bag (mcap, the sensor poses on /tf); a second bag of frame 0 three times, and its sensor poses in a file."""
+    mesh = load_mesh(artifacts, OBJECT)
+    points = read_artifact(layout.surface_file(artifacts, OBJECT), "surface")["points"]
+    renderer = DigitRenderer.from_default_config(np.ascontiguousarray(NO_CONTACT[..., ::-1]), workers=1)
+
+    def render(obj, T_world_object, T_world_sensors, seed):
+        return np.stack([renderer.render(mesh, T_world_object, T, seed + i).image
+                         for i, T in enumerate(T_world_sensors)])
+
+    spec = sequences.SequenceSpec(n_frames=F, candidates_per_object=300, lift_probability=0.0)
+    seqs = sequences.generate_sequences([OBJECT], {OBJECT: mesh}, {OBJECT: surface_sampling.sample_surface(mesh)},
+                                        {OBJECT: points}, render, spec, 1, 0)
+    T, images = seqs.T_world_sensors[0], seqs.images[0]
+    root = tmp_path_factory.mktemp("recording")
+    stamps = 100.0 + np.arange(F) / FPS
+    still = np.array([0, 0, 0])
+    (root / "poses_sensors.txt").write_text(g.poses_to_text(T[0]))
+    return {
+        "stamps": stamps,
+        "sequence": sequence_dirs.write_sequence_dir(root / "sequence", T, images, fps=FPS),
+        "bag": rosbag_io.write_sequence_bag(root / "bag", stamps, T, images, TOPICS, FRAMES),
+        "still_bag": rosbag_io.write_sequence_bag(root / "still", 50.0 + np.arange(3) / FPS, T[still], images[still],
+                                                  TOPICS, FRAMES),
+        "poses_file": root / "poses_sensors.txt",
+    }
+
+
+def run(capsys, *argv):
+    code = cli.main(["track", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def json_frames(out: str) -> list[dict]:
+    """The --json output's objects, one per line (a NaN, which it writes for a fit term a frame has not, as None)."""
+    return [json.loads(line, parse_constant=lambda name: None) for line in out.splitlines()]
+
+
+def track_json(argv: list[str]) -> list[dict]:
+    """``tactile6d track --object prim_box --json ARGV`` -> its frames; stdout and stderr captured here, as capsys
+    serves one test only."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(["track", "--object", OBJECT, "--json", *argv])
+    assert code == 0, err.getvalue()
+    return json_frames(out.getvalue())
+
+
+@pytest.fixture(scope="module")
+def from_sequence(artifacts, recording):
+    """The --json output for the sequence folder."""
+    return track_json(["--sequence", str(recording["sequence"]), "--artifacts", str(artifacts), *BASELINE])
+
+
+def test_a_sequence_folder_gives_one_line_per_frame(capsys, artifacts, recording, from_sequence):
+    code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(recording["sequence"]), "--artifacts",
+                         str(artifacts), *BASELINE)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert len(lines) == F
+    poses = []
+    for k, line in enumerate(lines):
+        fields = line.split()
+        assert len(fields) == 11, line  # frame stamp mode x y z ax ay az angle confidence
+        assert int(fields[0]) == k and fields[1] == f"{k / FPS:.6f}"  # frames.json has the fps
+        assert fields[2] in ("redetect", "update", "hold") and fields[10] == "-"  # no confidence model
+        poses.append(g.line_to_pose(" ".join(fields[3:10])))
+        assert g.is_rotation(poses[-1][:3, :3])
+    assert lines[0].split()[2] == "redetect"
+    assert err.splitlines()[-1].startswith(f"{F} frames: ")
+    # the JSON output: the same frames, modes and poses (the text has 17 significant digits)
+    assert [f["frame"] for f in from_sequence] == list(range(F))
+    assert [f["mode"] for f in from_sequence] == [line.split()[2] for line in lines]
+    np.testing.assert_allclose(np.array([f["pose"] for f in from_sequence]), np.array(poses), rtol=0, atol=1e-12)
+
+
+def test_json_has_a_pose_per_frame_and_the_fit_terms(from_sequence):
+    assert len(from_sequence) == F
+    first = from_sequence[0]
+    assert first["mode"] == "redetect" and first["reason"] == "start" and first["fit_ok"] is True
+    for k, frame in enumerate(from_sequence):
+        assert {"frame", "stamp", "pose", "mode", "reason", "confidence", "touching", "residual", "agreement",
+                "penetration", "fit_ok", "seconds"} <= set(frame)
+        assert frame["stamp"] == pytest.approx(k / FPS)
+        pose = np.array(frame["pose"])
+        assert pose.shape == (4, 4) and g.is_rotation(pose[:3, :3]) and np.array_equal(pose[3], [0, 0, 0, 1])
+        assert frame["touching"] == [True, True, True]  # the baseline reads no image: every sensor touches
+        assert frame["confidence"] is None and frame["seconds"] > 0
+        assert frame["reason"] in (None, "start", "request", "periodic", "fit")
+    assert any(f["mode"] == "update" for f in from_sequence[1:])  # the track is followed, not re-estimated
+
+
+def test_json_lines_are_strict_json(artifacts, recording):
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        assert cli.main(["track", "--object", OBJECT, "--json", "--sequence", str(recording["sequence"]),
+                         "--artifacts", str(artifacts), *BASELINE]) == 0
+    assert out.getvalue().count("\n") == F
+
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    for line in out.getvalue().splitlines():
+        json.loads(line, parse_constant=refuse)
+
+
+def test_a_bag_in_a_bop_csv_and_a_pose_bag_out(artifacts, recording, from_sequence, tmp_path):
+    out_bag, csv = tmp_path / "poses", tmp_path / "result.csv"
+    # the overrides after --frames: split off its list
+    frames = track_json(["--bag", str(recording["bag"]), "--images", *TOPICS, "--frames", *FRAMES, "--artifacts",
+                         str(artifacts), "--out-bag", str(out_bag), "--bop", str(csv), "--obj-id", "7", *BASELINE])
+    assert [f["frame"] for f in frames] == list(range(F))
+    np.testing.assert_allclose([f["stamp"] for f in frames], recording["stamps"], rtol=0, atol=1e-6)
+    poses = np.array([f["pose"] for f in frames])
+    # the bag holds the sequence folder's frames: the same track (the sensor poses went through quaternions)
+    assert [f["mode"] for f in frames] == [f["mode"] for f in from_sequence]
+    np.testing.assert_allclose(poses, [f["pose"] for f in from_sequence], rtol=0, atol=1e-6)
+
+    with_pose = [k for k, p in enumerate(poses) if np.isfinite(p).all()]
+    assert with_pose == list(range(F))  # every frame has a pose here
+    stamps, bag_poses = rosbag_io.read_pose_bag(out_bag)
+    assert len(bag_poses) == len(with_pose)
+    np.testing.assert_allclose(bag_poses, poses[with_pose], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(stamps, recording["stamps"][with_pose], rtol=0, atol=1e-6)
+
+    rows = bop.read_bop_csv(csv)
+    assert len(rows) == len(with_pose)
+    lines = csv.read_text().splitlines()
+    assert lines[0] == bop.BOP_HEADER and len(lines) == len(rows) + 1
+    for row, k, line in zip(rows, with_pose, lines[1:]):
+        assert (row.scene_id, row.im_id, row.obj_id) == (0, k, 7)
+        assert row.score == 1.0 and row.time == pytest.approx(frames[k]["seconds"])  # no confidence model: 1
+        np.testing.assert_allclose(row.T, poses[k], rtol=0, atol=1e-12)
+        R_text, t_text = line.split(",")[4:6]
+        np.testing.assert_array_equal([float(v) for v in R_text.split()], poses[k][:3, :3].reshape(-1))  # row-major
+        np.testing.assert_allclose([float(v) for v in t_text.split()], 1000.0 * poses[k][:3, 3], rtol=1e-15)  # mm
+
+
+def test_fixed_sensor_poses_from_a_file(artifacts, recording):
+    """A bag of frame 0 three times: its sensor poses from a file (--poses) or from TF (--frames) give the same
+    track, whose first frame is the sequence's first."""
+    common = ["--bag", str(recording["still_bag"]), "--images", *TOPICS, "--artifacts", str(artifacts), *BASELINE]
+    fixed = track_json(common + ["--poses", str(recording["poses_file"])])
+    from_tf = track_json(common + ["--frames", *FRAMES])
+    assert len(fixed) == len(from_tf) == 3
+    assert [f["mode"] for f in fixed] == [f["mode"] for f in from_tf]
+    assert fixed[0]["mode"] == "redetect"
+    np.testing.assert_allclose([f["pose"] for f in fixed], [f["pose"] for f in from_tf], rtol=0, atol=1e-6)
+    # the same frame again: the pose stays (within what the refinement moves it: measured 0.1 mm, 0.1 deg)
+    for f in fixed[1:]:
+        assert f["mode"] == "update"
+        pose, first = np.array(f["pose"]), np.array(fixed[0]["pose"])
+        assert np.linalg.norm(pose[:3, 3] - first[:3, 3]) < 0.001
+        assert np.degrees(g.rotation_angle(pose[:3, :3], first[:3, :3])) < 1.0
+
+
+@pytest.mark.parametrize(
+    "argv,message",
+    [(["--bag", "BAG"], "--bag needs --images"),
+     (["--bag", "BAG", "--images", *TOPICS], "--bag needs the sensor poses"),
+     (["--sequence", "SEQUENCE", "--frames", *FRAMES], "--images, --frames and --poses go with --bag")],
+)
+def test_usage_errors_exit_2(capsys, recording, argv, message):
+    argv = [{"BAG": str(recording["bag"]), "SEQUENCE": str(recording["sequence"])}.get(a, a) for a in argv]
+    with pytest.raises(SystemExit) as exited:
+        cli.main(["track", "--object", OBJECT, *argv])
+    out, err = capsys.readouterr()
+    assert exited.value.code == 2 and out == ""
+    errors = [line for line in err.splitlines() if "error:" in line]
+    assert len(errors) == 1 and err.splitlines()[-1] == errors[0] and message in errors[0], err
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [({"--bop": "out.csv"}, f"object {OBJECT!r} is not one of the 21 BOP YCB-V objects"),
+     ({"--sequence": "/nonexistent"}, "sequence folder /nonexistent not found"),
+     ({"--object": "prim_nothing"}, "unknown object 'prim_nothing'"),
+     ({"track.hypotheses": "0"}, "hypotheses"),
+     ({"rank.refine": "false"}, "tracking refines the last pose: it needs rank.refine")],
+)
+def test_errors_are_one_line_and_exit_2(capsys, artifacts, recording, tmp_path, change, message):
+    options = {"--object": OBJECT, "--sequence": str(recording["sequence"]), "--artifacts": str(artifacts)}
+    overrides = dict(item.split("=") for item in BASELINE)
+    for key, value in change.items():
+        if key.startswith("--"):
+            options[key] = str(tmp_path / value) if key == "--bop" else value
+        else:
+            overrides[key] = value
+    argv = [x for kv in options.items() for x in kv] + [f"{k}={v}" for k, v in overrides.items()]
+    code, out, err = run(capsys, *argv)
+    assert code == 2 and out == ""
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "out.csv").exists()
+
+
+@pytest.mark.parametrize("text,message", [(None, "not found"),
+                                          ("0 0 0 1 0 0 0\n1 2\n", "line 2")])
+def test_a_bad_poses_file_is_one_error_line(capsys, artifacts, recording, tmp_path, text, message):
+    path = tmp_path / "poses.txt"
+    if text is not None:
+        path.write_text(text)
+    code, out, err = run(capsys, "--object", OBJECT, "--bag", str(recording["bag"]), "--images", *TOPICS,
+                         "--poses", str(path), "--artifacts", str(artifacts), *BASELINE)
+    assert code == 2 and out == ""
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
