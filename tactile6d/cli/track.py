@@ -35,14 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d.cli.estimate import split_overrides, write
+from tactile6d.cli.estimate import EstimatorCache, split_overrides, write
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import pose_to_line, text_to_poses
 from tactile6d.data import bop, rosbag_io, sequence_dirs
 from tactile6d.data.hdf5 import read_background_images
-from tactile6d.estimation.estimator import Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.estimation.tracker import TrackedFrame, Tracker, TrackSettings
 from tactile6d.perception import photometric
@@ -131,11 +130,8 @@ def main(argv: list[str]) -> int:
     cfg = compose_config(args.overrides)
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
-    known = KnownObjects(artifacts, cfg)
-    found = known.require_artifacts(args.object, baseline=cfg.select.method != "ours")
     background = read_background_images(args.background) if args.background else None
-    estimator = Estimator.from_artifacts(args.object, known.artifacts, cfg, background=background,
-                                         objects_dir=found.objects_dir)
+    estimator = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background).load(args.object)
     stamps, poses, rows, seconds, modes = [], [], [], [], []
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
