@@ -1,7 +1,9 @@
 """Stage evaluate_tracking: the tracker against single-shot estimation on the generated sequences (``tracking``).
 
 Each sequence of ``artifacts/sequences/tracking.h5`` (stage make_sequences) is fed frame by frame to its
-object's ``Tracker`` (config section ``track``), with the sensor poses as the hand reports them; every
+object's ``Tracker`` (config section ``track``), with the sensor poses as the hand reports them (with
+``track.evaluation.true_sensor_poses``, the poses without the hand's kinematic error, for tracker and
+single-shot estimates alike: what that error costs); every
 ``track.evaluation.single_shot_every``-th frame is also estimated from scratch (``Estimator.estimate``, the
 default settings), to compare on the same frames. Writes ``artifacts/metrics/tracking.json``: the set's
 figures, each sequence's, and the per-frame errors, modes and times (stage report draws the error over time
@@ -53,7 +55,8 @@ def run_task(kind: str, q: int, cfg) -> dict:
     -> poses (F or C, 4, 4), and for the track each frame's mode, reason, seconds and confidence."""
     art = _sequences(cfg.paths.artifacts_dir)
     obj = str(art["objects"][q])
-    T, images = np.asarray(art["T_world_sensors"][q]), np.asarray(art["images"][q])
+    poses = "T_world_sensors_true" if cfg.track.evaluation.true_sensor_poses else "T_world_sensors"
+    T, images = np.asarray(art[poses][q]), np.asarray(art["images"][q])
     estimator = _estimator(cfg, obj)
     if kind == "single":
         every = int(cfg.track.evaluation.single_shot_every)

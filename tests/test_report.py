@@ -3,6 +3,8 @@ the paper's own Table I; and its table of the stages' recorded times."""
 
 import datetime
 
+import pytest
+
 from stages import report
 
 
@@ -78,3 +80,27 @@ def test_confidence_section_tabulates_each_set_and_draws_the_reliability_diagram
 
 def test_confidence_section_without_the_stage_says_so(tmp_path):
     assert report.confidence_section(str(tmp_path), tmp_path) == ["(not run)", ""]
+
+
+@pytest.mark.parametrize("true_poses", [False, True])
+def test_tracking_section_tabulates_each_sequence_and_says_which_sensor_poses_it_was_fed(tmp_path, true_poses):
+    from tactile6d.core.config import compose_config
+    from tactile6d.data import layout
+    from tactile6d.data.hdf5 import write_json
+
+    row = {"name": "036_wood_block/sequence_0", "track_position_cm_median": 0.44, "track_position_cm_median_compared": 0.45,
+           "single_position_cm_median": 9.22, "longest_over_s": 1.03, "redetections": 3}
+    frames = {"track_position_m": [0.004, 0.03, 0.005], "single_frames": [0], "single_position_m": [0.09],
+              "modes": ["redetect", "update", "update"], "touching": [[True] * 3, [True, False, True], [True] * 3]}
+    summary = {"sequences": 1, "frames": 3, "fps": 30.0, "lost_threshold_cm": 2.0, "track_position_cm_median": 0.44,
+               "track_position_cm_median_compared": 0.45, "single_position_cm_median": 9.22, "longest_over_s_max": 1.03,
+               "redetections": 3}
+    write_json(layout.metrics_file(tmp_path, "tracking"), {"summary": summary, "sequences": [row], "frames": [frames]})
+    figures = tmp_path / "figures"
+    figures.mkdir()
+    cfg = compose_config([f"track.evaluation.true_sensor_poses={true_poses}"])
+    text = "\n".join(report.tracking_section(str(tmp_path), figures, cfg))
+    assert "| `036_wood_block/sequence_0` | 0.44 | 0.45 | 9.22 | 1.03 | 3 |" in text
+    assert "| **all** | 0.44 | 0.45 | 9.22 | 1.03 (longest) | 3 |" in text
+    assert ("fed without it, track.evaluation.true_sensor_poses" in text) == true_poses
+    assert (figures / "tracking_error.png").stat().st_size > 1000
