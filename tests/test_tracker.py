@@ -271,6 +271,26 @@ def test_redetect_every_n_re_detects_every_nth_frame(world, estimator):
     assert all(gap <= 4 for _, gap, _ in gaps), gaps
 
 
+@pytest.mark.parametrize("light_every", [4, 0])
+def test_a_re_detection_is_the_single_shot_estimate_of_the_frame_as_given(world, estimator, light_every):
+    """A re-detected frame is estimated as ``Estimator.estimate`` estimates its images as given: whether the
+    tracker fitted that frame's light itself and hands its reading on (light_every = redetect_every) or not
+    (light_every 0: fitted at re-detection only), and never on images already brought to their light."""
+    seqs = world["seqs"]
+    # LEDs drifted since the no-contact image: each channel's gain off, so that bringing the light back changes
+    # the pixels (and bringing it back twice would change them again).
+    images = np.clip(seqs.images[0, :13] * np.array([1.07, 0.94, 1.03]), 0, 255).astype(np.uint8)
+    with Tracker(estimator, track_settings(redetect_every=4, light_every=light_every)) as tracker:
+        frames = run(tracker, seqs.T_world_sensors[0, :13], images)
+    periodic = [k for k, f in enumerate(frames) if f.reason == "periodic"]
+    assert len(periodic) >= 2, [f.reason for f in frames]
+    for k in [0] + periodic:
+        alone = estimator.estimate(seqs.T_world_sensors[0, k], images[k])
+        np.testing.assert_array_equal(frames[k].estimate.poses, alone.poses, err_msg=str(k))
+        np.testing.assert_array_equal(frames[k].estimate.scores, alone.scores, err_msg=str(k))
+        assert frames[k].estimate.light is not None and len(frames[k].estimate.light) == 3
+
+
 def test_an_update_never_penetrates_a_sensor_beyond_the_limit(world):
     """Sensor poses off by 3 mm / 3 deg per axis (twice a hand's default), an estimator that expects 0.5 mm /
     0.5 deg and no margin: updated poses press into the sensors. Each update stays within the limit the last

@@ -47,7 +47,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -227,7 +227,8 @@ class Tracker:
         reason = self._redetect_reason()
         if reason == "start":
             return self._redetect(T, images, backgrounds, reason, start)
-        if self._light_is_stale(len(T)):
+        raw, fresh_light = images, self._light_is_stale(len(T))
+        if fresh_light:
             images, self._light = est._aligned(images, per_sensor)
             self._frames_since_light = 0
         else:
@@ -236,11 +237,13 @@ class Tracker:
         touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
         if not touching.any():
             return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
-        answer = self._follow(T, images, backgrounds, contacts, touching, start)
+        answer = self._follow(T, raw, backgrounds, contacts, touching, start)
         if reason is not None and answer.mode == "update":
             # Requested or periodic: the frame's single-shot poses join the hypotheses followed, which were
-            # scored on this frame too; the evidence decides between them from here on.
-            return self._redetect(T, images, backgrounds, reason, start, keep=True)
+            # scored on this frame too; the evidence decides between them from here on. Read under a light
+            # fitted this frame, its images are what the single-shot estimate would read: not read twice.
+            read = (images, contacts) if fresh_light else None
+            return self._redetect(T, raw, backgrounds, reason, start, keep=True, read=read)
         return answer
 
     # --- the steps ---------------------------------------------------------------------------------------
@@ -354,15 +357,18 @@ class Tracker:
             scores = scores + r.agreement_weight * agreement
         return _Scored(poses, scores, distance, agreement, depths.max(axis=1))
 
-    def _redetect(self, T: np.ndarray, images, backgrounds, reason: str, start: float, keep: bool = False
-                  ) -> TrackedFrame:
-        """The frame estimated from scratch; the light's fits and the confidence are taken from it. Its poses
-        that explain the contacts about equally well become the hypotheses followed, or with ``keep`` join
-        those followed so far (the ``hypotheses`` with the least evidence are kept). When it matches nothing
-        (``NoMatch``: e.g. a lifted sensor's image read as a contact of no database image), the last pose is
-        held, marked as failing the fit check, and the next frame tries again."""
+    def _redetect(self, T: np.ndarray, images, backgrounds, reason: str, start: float, keep: bool = False,
+                  read: tuple[np.ndarray, Contacts] | None = None) -> TrackedFrame:
+        """The frame (images as given) estimated from scratch; the light's fits and the confidence are taken
+        from it. Its poses that explain the contacts about equally well become the hypotheses followed, or
+        with ``keep`` join those followed so far (the ``hypotheses`` with the least evidence are kept). When
+        it matches nothing (``NoMatch``: e.g. a lifted sensor's image read as a contact of no database image),
+        the last pose is held, marked as failing the fit check, and the next frame tries again. read: the
+        images brought to their light by fits made this frame (``self._light``) and their contacts, which
+        the estimate then takes instead of fitting and reading them again (the same estimate, sooner)."""
         try:
-            estimate = self.estimator.estimate(T, images, backgrounds)
+            estimate = self.estimator.estimate(T, images, backgrounds) if read is None else self._estimate_read(
+                T, *read, backgrounds)
         except NoMatch:
             touching = np.zeros(len(T), dtype=bool)
             return self._answer(self.pose, "hold", reason, touching, np.nan, np.nan, np.nan, False, start)
@@ -388,6 +394,13 @@ class Tracker:
         penetration = float(estimate.penetrations[0].max()) if len(estimate.poses) else np.nan
         pose = self._hypotheses[self._leader()].poses[-1] if self._hypotheses else None
         return self._answer(pose, "redetect", reason, touching, np.nan, np.nan, penetration, True, start, estimate)
+
+    def _estimate_read(self, T: np.ndarray, aligned: np.ndarray, contacts: Contacts, backgrounds) -> Estimate:
+        """``Estimator.estimate`` of a frame whose images were brought to their light by fits made this frame
+        and read into ``contacts``: the encoder's angles, then select, optimize and rank."""
+        est = self.estimator
+        angles = est.encode(aligned, contacts, T, backgrounds) if est.settings.select.method == "ours" else None
+        return replace(est.estimate_encoded(T, contacts, angles), light=self._light)
 
     def _answer(self, pose, mode, reason, touching, residual, agreement, penetration, fit_ok, start,
                 estimate=None) -> TrackedFrame:
