@@ -68,7 +68,7 @@ def run_task(kind: str, q: int, cfg) -> dict:
         answers = accuracy.track_frames(tracker.update, T, images)
     return {"poses": np.stack([a.pose for a in answers]), "modes": [a.mode for a in answers],
             "reasons": [a.reason for a in answers], "seconds": np.array([a.seconds for a in answers]),
-            "confidence": [a.confidence for a in answers]}
+            "confidence": [a.confidence for a in answers], "ambiguous": [a.ambiguous for a in answers]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
                                desc="track sequences")
     done = {task: result for task, result in zip(tasks, results)}
     references = {o: scoring.load_object_reference(artifacts, o) for o in dict.fromkeys(objects)}
-    per_sequence, pooled = [], {"track": [], "single": [], "compared": []}
+    per_sequence, pooled = [], {"track": [], "single": [], "compared": [], "adi": [], "ambiguous": [], "confidence": []}
     frames_out = []
     for q, obj in enumerate(objects):
         ref, truth = references[obj], np.asarray(art["T_world_object"][q])
@@ -97,12 +97,17 @@ def main(argv: list[str] | None = None) -> int:
         pooled["track"].append(track_err["position"])
         pooled["single"].append(single_err["position"])
         pooled["compared"].append(track_err["position"][compared])
+        pooled["adi"].append(track_err["adi"])
+        pooled["ambiguous"].append(np.asarray(track["ambiguous"], dtype=bool))
+        pooled["confidence"].append(np.array([np.nan if c is None else c for c in track["confidence"]]))
         frames_out.append({"track_position_m": track_err["position"].tolist(),
                            "single_frames": compared.tolist(), "single_position_m": single_err["position"].tolist(),
                            "modes": track["modes"], "reasons": track["reasons"],
                            "seconds": np.round(track["seconds"], 4).tolist(), "confidence": track["confidence"],
+                           "ambiguous": track["ambiguous"],
                            "touching": np.asarray(art["touching"][q]).tolist()})
     summary = accuracy.summarise_set(per_sequence, *(np.concatenate(pooled[k]) for k in ("track", "single", "compared")))
+    summary.update(accuracy.trust_summary(*(np.concatenate(pooled[k]) for k in ("ambiguous", "confidence", "adi"))))
     summary.update(fps=fps, lost_threshold_cm=100 * lost)
     write_json(layout.metrics_file(artifacts, "tracking"), {"summary": summary, "sequences": per_sequence,
                                                             "frames": frames_out})

@@ -323,7 +323,25 @@ def tracking_section(artifacts: str, figures: Path, cfg) -> list[str]:
         "|---|---|---|---|---|---|",
         *rows,
         "",
+        *_tracking_trust(summary),
         "![tracking error over time](figures/tracking_error.png)",
+        "",
+    ]
+
+
+def _tracking_trust(summary: dict) -> list[str]:
+    """The sentence on the tracker's per-frame trust signals (``tracking_accuracy.trust_summary``), or
+    nothing for a metrics file made before they were measured."""
+    if "ambiguous_share" not in summary:
+        return []
+    share = (lambda key: "-" if summary[key] != summary[key] else f"{100 * summary[key]:.1f} %")  # NaN: none
+    auroc = summary["confidence_auroc"]
+    return [
+        f"Trust per frame: the confidence carried from the last re-detection tells the frames within 1 cm ADI from the "
+        f"others with AUROC {'-' if auroc != auroc else f'{auroc:.2f}'}; {share('ambiguous_share')} of the frames were "
+        "flagged ambiguous (another pose followed explains the frames about as well as the one reported), "
+        f"{share('wrong_share_ambiguous')} of them 1 cm ADI or more off, against {share('wrong_share_unambiguous')} "
+        "of the others.",
         "",
     ]
 

@@ -20,8 +20,9 @@ from tactile6d.core import geometry as g
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError
 from tactile6d.core.settings import Settings
+from tactile6d.estimation import confidence
 from tactile6d.estimation import estimator as est
-from tactile6d.estimation.tracker import MODES, TrackedFrame, Tracker, TrackSettings
+from tactile6d.estimation.tracker import MODES, TrackedFrame, Tracker, TrackSettings, _Hypothesis
 from tactile6d.sim import sequences, surface_sampling
 from tactile6d.sim.render import DigitRenderer
 
@@ -289,6 +290,34 @@ def test_a_re_detection_is_the_single_shot_estimate_of_the_frame_as_given(world,
         np.testing.assert_array_equal(frames[k].estimate.poses, alone.poses, err_msg=str(k))
         np.testing.assert_array_equal(frames[k].estimate.scores, alone.scores, err_msg=str(k))
         assert frames[k].estimate.light is not None and len(frames[k].estimate.light) == 3
+
+
+def test_a_frame_is_ambiguous_when_a_far_pose_followed_has_about_the_same_evidence(world):
+    """The single-shot rule on the poses followed: another pose more than 0.75 cm (ADI) away whose evidence is
+    within the confidence model's ambiguity_ratio (25 % here) of the reported one's."""
+    estimator = make_estimator(world)
+    estimator.confidence_model = confidence.ConfidenceModel(confidence.FEATURES, (0.0, 0.0), 0.0, (0.0, 0.0),
+                                                            (1.0, 1.0), ambiguity_ratio=0.25)
+    T = g.make_pose(np.eye(3), [0.3, 0.0, 0.1])
+    far, near = T @ g.make_pose(np.eye(3), [0.02, 0.0, 0.0]), T @ g.make_pose(np.eye(3), [0.002, 0.0, 0.0])
+    with Tracker(estimator, track_settings()) as tracker:
+        def ambiguous(*followed):
+            tracker._hypotheses = [_Hypothesis([pose], evidence) for pose, evidence in followed]
+            return tracker._is_ambiguous()
+
+        assert ambiguous((T, 1.0e-3), (far, 1.2e-3))  # 2 cm away, 20 % worse: about as good
+        assert ambiguous((far, 1.2e-3), (T, 1.0e-3))  # whichever order they are followed in
+        assert not ambiguous((T, 1.0e-3), (far, 1.4e-3))  # 40 % worse
+        assert not ambiguous((T, 1.0e-3), (near, 1.0e-3))  # as good, but 2 mm away: the same pose
+        assert not ambiguous((T, 1.0e-3))
+        estimator.confidence_model = None  # without a model, as Estimate.ambiguous: never
+        assert not ambiguous((T, 1.0e-3), (far, 1.0e-3))
+
+
+def test_each_frame_says_whether_it_is_ambiguous(tracked):
+    frames, _ = tracked
+    assert all(f.ambiguous is False for f in frames)  # this estimator has no confidence model
+    assert frames[0].to_dict()["ambiguous"] is False
 
 
 def test_an_update_never_penetrates_a_sensor_beyond_the_limit(world):

@@ -31,7 +31,10 @@ rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose 
 
 Confidence per frame: the estimator's calibrated confidence (``confidence.ConfidenceModel``, P(ADI < 1
 cm) of a single-shot estimate) of the last re-detection, carried between re-detections; None without a
-calibrated model. ``TrackedFrame`` also carries the fit terms, so a caller can apply a stricter check.
+calibrated model. And whether the frame is *ambiguous*: the single-shot rule (``confidence.distinct_poses``:
+another pose farther than 0.75 cm ADI whose score is within ``ambiguity_ratio`` of the best's) applied to the
+poses followed and their evidence, so it changes as the frames tell the poses apart. ``TrackedFrame`` also
+carries the fit terms, so a caller can apply a stricter check.
 
 Light: images are brought to their no-contact images' light as ``Estimator.estimate`` does, but the
 fit of the light (``photometric.fit_light``, 30 ms for three images) is made at re-detection and every
@@ -55,6 +58,7 @@ import numpy as np
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, NoMatch
 from tactile6d.core.geometry import invert_pose, rotation_angle
+from tactile6d.estimation import confidence
 from tactile6d.estimation import rank as rank_step
 from tactile6d.estimation import refine as refinement
 from tactile6d.estimation.estimator import Estimate, Estimator
@@ -108,6 +112,8 @@ class TrackedFrame:
     kept: no image showed contact, or the re-detection that ``reason`` asked for matched nothing); reason:
     why this frame was re-detected (``start``, ``request``, ``periodic``, ``fit``) or None; confidence: the
     calibrated P(ADI < 1 cm) of the last re-detection (module docstring), None without a confidence model;
+    ambiguous: whether another pose followed explains the frames about as well as the reported one (module
+    docstring; False without a confidence model);
     touching (L,) bool: the sensors whose image shows contact; residual (m): mean point-to-plane residual
     of the touching sensors' contacts; agreement: render-and-compare cost (mean over sensors of 1 - mask
     IoU and the share of untouched gel pressed); penetration (m): the deepest sensor penetration, through
@@ -121,6 +127,7 @@ class TrackedFrame:
     mode: str
     reason: str | None
     confidence: float | None
+    ambiguous: bool
     touching: np.ndarray
     residual: float
     agreement: float
@@ -136,6 +143,7 @@ class TrackedFrame:
             "mode": self.mode,
             "reason": self.reason,
             "confidence": self.confidence,
+            "ambiguous": self.ambiguous,
             "touching": self.touching.tolist(),
             "residual": _number(self.residual),
             "agreement": _number(self.agreement),
@@ -193,6 +201,7 @@ class Tracker:
         self._hypotheses: list[_Hypothesis] = []  # the poses followed, the one with the least evidence reported
         self._penetration_limit = np.inf  # m: the deepest penetration an updated pose may have
         self._confidence: float | None = None
+        self._ambiguous = False
         self._light: list[photometric.LightFit] | None = None
         self._frames_since_light = 0
         self._frames_since_redetect = 0
@@ -313,12 +322,26 @@ class Tracker:
         self._hypotheses = _merged(kept, self.estimator.settings.rank)
         if not self._hypotheses:
             return self._redetect(T, images, backgrounds, "fit", start)
+        self._ambiguous = self._is_ambiguous()
         h = self._hypotheses[self._leader()]
         return self._answer(h.poses[-1], "update", None, touching, *h.terms, True, start)
 
     def _leader(self) -> int:
         """The hypothesis reported: the least evidence (running mean score)."""
         return int(np.argmin([h.evidence for h in self._hypotheses]))
+
+    def _is_ambiguous(self) -> bool:
+        """Whether hypotheses other than the reported one explain the frames about as well: the single-shot
+        rule (``confidence.distinct_poses`` with the model's ``ambiguity_ratio``) on the hypotheses' last
+        poses and evidence; False with one hypothesis or without a confidence model."""
+        model = self.estimator.confidence_model
+        if model is None or len(self._hypotheses) < 2:
+            return False
+        order = sorted(range(len(self._hypotheses)), key=lambda k: self._hypotheses[k].evidence)  # leader first
+        poses = np.stack([self._hypotheses[k].poses[-1] for k in order])
+        evidence = np.array([self._hypotheses[k].evidence for k in order])
+        distances = confidence.distances_from_best(self.estimator.spread_points, poses)
+        return len(confidence.distinct_poses(evidence, distances, model.ambiguity_ratio)) > 1
 
     def _score(self, poses: np.ndarray, T: np.ndarray, contacts: Contacts, touching: np.ndarray) -> _Scored:
         """The candidate poses refined against the touching sensors' contacts and scored as
@@ -389,6 +412,7 @@ class Tracker:
             new = [_Hypothesis([estimate.poses[i]], float(estimate.scores[i])) for i in chosen]
             both = _merged((self._hypotheses if keep else []) + new, self.estimator.settings.rank)
             self._hypotheses = both[: self.settings.hypotheses]
+            self._ambiguous = self._is_ambiguous()
             self._penetration_limit = (max(self.estimator.settings.sensors.contact_sigma,
                                            float(estimate.penetrations[0].max())) + self.settings.penetration_margin)
         penetration = float(estimate.penetrations[0].max()) if len(estimate.poses) else np.nan
@@ -406,8 +430,8 @@ class Tracker:
                 estimate=None) -> TrackedFrame:
         pose = np.full((4, 4), np.nan) if pose is None else np.asarray(pose, dtype=np.float64)
         self._poses = (self._poses + [pose])[-2:]
-        return TrackedFrame(pose, mode, reason, self._confidence, touching, float(residual), float(agreement),
-                            float(penetration), fit_ok, time.perf_counter() - start, estimate)
+        return TrackedFrame(pose, mode, reason, self._confidence, self._ambiguous, touching, float(residual),
+                            float(agreement), float(penetration), fit_ok, time.perf_counter() - start, estimate)
 
 
 @dataclass

@@ -105,6 +105,23 @@ def summarise_sequence(track: dict[str, np.ndarray], single: dict[str, np.ndarra
     }
 
 
+def trust_summary(ambiguous: np.ndarray, confidence: np.ndarray, adi: np.ndarray, threshold: float = 0.01) -> dict:
+    """How the tracker's per-frame trust signals sort its frames. ambiguous (F,) bool (``TrackedFrame.ambiguous``),
+    confidence (F,) (NaN where there was none), adi (F,) m -> the share of frames flagged ambiguous, the share
+    of flagged and of unflagged frames whose ADI is ``threshold`` or more (NaN where there are none), and the
+    confidence's AUROC for ADI under ``threshold`` over the frames that have one (NaN when one class is absent)."""
+    flagged = np.asarray(ambiguous, dtype=bool)
+    adi, p = np.asarray(adi, dtype=np.float64), np.asarray(confidence, dtype=np.float64)
+    wrong = ~(adi < threshold)  # a frame without a pose counts as wrong
+    known = np.isfinite(p)
+    return {
+        "ambiguous_share": float(flagged.mean()) if len(flagged) else float("nan"),
+        "wrong_share_ambiguous": float(wrong[flagged].mean()) if flagged.any() else float("nan"),
+        "wrong_share_unambiguous": float(wrong[~flagged].mean()) if (~flagged).any() else float("nan"),
+        "confidence_auroc": metrics.auroc(p[known & ~wrong], p[known & wrong]),
+    }
+
+
 def summarise_set(per_sequence: list[dict], track_position: np.ndarray, single_position: np.ndarray,
                   track_position_compared: np.ndarray) -> dict:
     """The whole set's figures from its sequences' (``summarise_sequence``) and the pooled per-frame
