@@ -111,7 +111,7 @@ def test_a_sequence_folder_gives_one_line_per_frame(capsys, artifacts, recording
         poses.append(g.line_to_pose(" ".join(fields[3:10])))
         assert g.is_rotation(poses[-1][:3, :3])
     assert lines[0].split()[2] == "redetect"
-    assert err.splitlines()[-1].startswith(f"{F} frames: ")
+    assert err.splitlines()[-1].startswith(f"{F} frames: ") and " 0 ambiguous;" in err.splitlines()[-1]
     # the JSON output: the same frames, modes and poses (the text has 17 significant digits)
     assert [f["frame"] for f in from_sequence] == list(range(F))
     assert [f["mode"] for f in from_sequence] == [line.split()[2] for line in lines]

@@ -16,12 +16,13 @@ Input, one of:
 Output: one line per frame on stdout: ``<frame> <stamp> <mode> x y z ax ay az angle <confidence>`` (mode
 ``redetect``, ``update`` or ``hold``; stamp and confidence ``-`` when unknown), or with ``--json`` one
 JSON object per frame (pose as a 4x4 matrix, mode, the re-detection's reason, confidence, whether it is
-ambiguous, which sensors touch, the fit terms, seconds). ``--bop FILE`` also writes a BOP result CSV (``scene_id`` from
-``--scene-id``, ``im_id`` the frame, ``obj_id`` the object's YCB-Video id or ``--obj-id``, score the
-confidence, t in mm, time the frame's seconds); ``--out-bag PATH`` writes the poses as
+ambiguous, which sensors touch, the fit terms, seconds). ``--bop FILE`` also writes a BOP result CSV
+(``scene_id`` from ``--scene-id``, ``im_id`` the frame, ``obj_id`` the object's YCB-Video id or ``--obj-id``,
+score the confidence, t in mm, time the frame's seconds); ``--out-bag PATH`` writes the poses as
 ``geometry_msgs/PoseStamped`` (``--out-topic``). Frames without a pose yet are left out of both.
 
-A summary goes to stderr at the end (frames, re-detections, median seconds per updated frame).
+A summary goes to stderr at the end (frames, re-detections, held and ambiguous frames, median seconds per
+updated frame).
 """
 
 from __future__ import annotations
@@ -132,7 +133,7 @@ def main(argv: list[str]) -> int:
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     background = read_background_images(args.background) if args.background else None
     estimator = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background).load(args.object)
-    stamps, poses, rows, seconds, modes = [], [], [], [], []
+    stamps, poses, rows, seconds, modes, ambiguous = [], [], [], [], [], 0
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
         warnings.simplefilter("once", UnderdeterminedPoseWarning)
@@ -144,6 +145,7 @@ def main(argv: list[str]) -> int:
                 write(frame_line(index, stamp, answer), sys.stdout)
             seconds.append(answer.seconds)
             modes.append(answer.mode)
+            ambiguous += int(answer.ambiguous)
             if np.isfinite(answer.pose).all():
                 stamps.append(index / args.fps if stamp is None else stamp)
                 poses.append(answer.pose)
@@ -160,6 +162,6 @@ def main(argv: list[str]) -> int:
                                  args.world_frame, args.out_topic)
     updates = [s for s, m in zip(seconds, modes) if m == "update"]
     median = f"{1e3 * np.median(updates):.1f} ms" if updates else "-"
-    write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held; median "
-          f"update {median}", sys.stderr)
+    write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held, {ambiguous} "
+          f"ambiguous; median update {median}", sys.stderr)
     return 0
