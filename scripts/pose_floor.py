@@ -27,21 +27,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
 from tactile6d.core.config import compose_config  # noqa: E402
-from tactile6d.core.geometry import invert_pose, make_pose, rotvec_to_rotmat  # noqa: E402
 from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
+from tactile6d.sim.perturb import true_sensor_poses  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
-
-
-def true_sensor_poses(scenes, s: int) -> np.ndarray | None:
-    """Scene s's true sensor poses (L, 4, 4) when its set stored the errors it added (``perturb_sensor_poses``:
-    ``T_reported = T_true @ error``, the error in the sensor's frame), else None."""
-    if "pose_error_translation" not in scenes:
-        return None
-    error = make_pose(rotvec_to_rotmat(np.asarray(scenes["pose_error_rotvec"][s])),
-                      np.asarray(scenes["pose_error_translation"][s]))
-    return np.asarray(scenes["T_world_sensors"][s]) @ invert_pose(error)
 
 
 def position_cm(T: np.ndarray, truth: np.ndarray) -> float:
