@@ -25,8 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 from tactile6d.core.config import compose_config  # noqa: E402
 from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
-from tactile6d.evaluation.kinematic_bound import scene_bound  # noqa: E402
-from tactile6d.sim.perturb import true_sensor_poses  # noqa: E402
+from tactile6d.evaluation.kinematic_bound import scene_bound, true_sensor_poses  # noqa: E402
 
 
 def summary(values_m: list[float]) -> str:

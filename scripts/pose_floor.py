@@ -30,7 +30,7 @@ from tactile6d.core.config import compose_config  # noqa: E402
 from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
-from tactile6d.sim.perturb import true_sensor_poses  # noqa: E402
+from tactile6d.evaluation.kinematic_bound import true_sensor_poses  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
 
 

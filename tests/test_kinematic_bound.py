@@ -5,6 +5,8 @@ import pytest
 
 from tactile6d.core.geometry import invert_pose, make_pose, orthonormal_frame, random_rotations, rotvec_to_rotmat
 from tactile6d.evaluation import kinematic_bound as kb
+from tactile6d.sim import perturb
+from tactile6d.sim.scenes import SceneSet
 
 SIGMA_M, SIGMA_RAD = 0.0015, np.radians(1.5)
 
@@ -108,3 +110,24 @@ def test_the_bound_scales_with_the_error_and_is_the_mean_of_l_readings_without_r
     alone = kb.scene_bound(T_wo, T_ws, T_ws, SIGMA_M, 1e-9)[0]
     assert alone == pytest.approx(SIGMA_M / np.sqrt(3) * 2 * np.sqrt(2 / np.pi), rel=0.01)
     assert bound > alone
+
+
+def posed_set(n: int = 4, sensors: int = 3) -> SceneSet:
+    rng = np.random.default_rng(5)
+    T = make_pose(rotvec_to_rotmat(rng.normal(0, 1, (n, sensors, 3))), rng.normal(0, 0.05, (n, sensors, 3)))
+    return SceneSet(np.array([f"s{i}" for i in range(n)]), np.array(["box"] * n), np.broadcast_to(np.eye(4), (n, 4, 4)),
+                    T, np.zeros((n, sensors, 2, 2, 3), np.uint8), np.zeros((n, sensors, 3)), np.zeros((n, sensors, 3)),
+                    np.zeros((n, sensors), np.int64))
+
+
+def test_the_true_sensor_poses_are_recovered_from_a_kinematic_set():
+    clean = posed_set()
+    off = perturb.perturb_sensor_poses(clean, 0.002, np.radians(2.0), np.random.default_rng(3))
+    stored = off.as_datasets()
+    for s in range(len(clean)):
+        assert not np.allclose(stored["T_world_sensors"][s], clean.T_world_sensors[s], atol=1e-4)
+        np.testing.assert_allclose(kb.true_sensor_poses(stored, s), clean.T_world_sensors[s], atol=1e-12)
+
+
+def test_a_set_without_sensor_pose_errors_has_no_true_poses_to_offer():
+    assert kb.true_sensor_poses(posed_set().as_datasets(), 0) is None

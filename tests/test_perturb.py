@@ -4,7 +4,7 @@ scene artifact that carries each sensor's own no-contact image."""
 import numpy as np
 import pytest
 
-from tactile6d.core.geometry import invert_pose, make_pose, rotmat_to_rotvec, rotvec_to_rotmat
+from tactile6d.core.geometry import invert_pose, make_pose, rotmat_to_rotvec
 from tactile6d.data.hdf5 import read_artifact, write_artifact
 from tactile6d.sim import perturb
 from tactile6d.sim.scenes import SceneSet, scene_set_from_artifact
@@ -74,24 +74,3 @@ def test_camera_noise_has_its_sigma(noise):
     image = np.full((200, 200, 3), 128, np.uint8)
     out = perturb.add_camera_noise(image, noise, np.random.default_rng(4)).astype(float)
     assert abs(out.std() - noise) < 0.1
-
-
-def posed_set(n: int = 4, sensors: int = 3) -> SceneSet:
-    rng = np.random.default_rng(5)
-    T = make_pose(rotvec_to_rotmat(rng.normal(0, 1, (n, sensors, 3))), rng.normal(0, 0.05, (n, sensors, 3)))
-    return SceneSet(np.array([f"s{i}" for i in range(n)]), np.array(["box"] * n), np.broadcast_to(np.eye(4), (n, 4, 4)),
-                    T, np.zeros((n, sensors, 2, 2, 3), np.uint8), np.zeros((n, sensors, 3)), np.zeros((n, sensors, 3)),
-                    np.zeros((n, sensors), np.int64))
-
-
-def test_the_true_sensor_poses_are_recovered_from_a_kinematic_set():
-    clean = posed_set()
-    off = perturb.perturb_sensor_poses(clean, 0.002, np.radians(2.0), np.random.default_rng(3))
-    stored = off.as_datasets()
-    for s in range(len(clean)):
-        assert not np.allclose(stored["T_world_sensors"][s], clean.T_world_sensors[s], atol=1e-4)
-        np.testing.assert_allclose(perturb.true_sensor_poses(stored, s), clean.T_world_sensors[s], atol=1e-12)
-
-
-def test_a_set_without_sensor_pose_errors_has_no_true_poses_to_offer():
-    assert perturb.true_sensor_poses(posed_set().as_datasets(), 0) is None

@@ -1,4 +1,4 @@
-"""scripts/pose_floor.py: its figures' units (the true sensor poses it estimates through: tests/test_perturb.py)."""
+"""scripts/pose_floor.py: its figures' units (the true sensor poses it estimates through: tests/test_kinematic_bound.py)."""
 
 import importlib.util
 from pathlib import Path

@@ -27,7 +27,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile6d.core.geometry import invert_pose, rotmat_to_rotvec, skew
+from tactile6d.core.geometry import invert_pose, make_pose, rotmat_to_rotvec, rotvec_to_rotmat, skew
+
+
+def true_sensor_poses(scenes, s: int) -> np.ndarray | None:
+    """Scene s's true sensor poses (L, 4, 4) when its set stored the errors ``sim.perturb.perturb_sensor_poses``
+    added (``T_reported = T_true @ error``, the error in the sensor's frame), else None. scenes: the scene
+    artifact's datasets (``read_artifact(..., "scenes")``) or ``SceneSet.as_datasets()``."""
+    if "pose_error_translation" not in scenes:
+        return None
+    error = make_pose(rotvec_to_rotmat(np.asarray(scenes["pose_error_rotvec"][s])),
+                      np.asarray(scenes["pose_error_translation"][s]))
+    return np.asarray(scenes["T_world_sensors"][s]) @ invert_pose(error)
 
 
 def poses_to_object_jacobians(T_world_object: np.ndarray, T_world_sensors: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tactile6d.core.geometry import invert_pose, make_pose, rotvec_to_rotmat
+from tactile6d.core.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.sim.scenes import SceneSet
 
 
@@ -75,14 +75,3 @@ def perturb_sensor_poses(scenes: SceneSet, sigma_m: float, sigma_rad: float, rng
     error = make_pose(rotvec_to_rotmat(rotvec), translation)
     extra = {**scenes.extra, "pose_error_translation": translation, "pose_error_rotvec": rotvec}
     return replace(scenes, T_world_sensors=scenes.T_world_sensors @ error, extra=extra)
-
-
-def true_sensor_poses(scenes, s: int) -> np.ndarray | None:
-    """Scene s's true sensor poses (L, 4, 4) when its set stored the errors ``perturb_sensor_poses`` added
-    (``T_reported = T_true @ error``, the error in the sensor's frame), else None. scenes: the scene
-    artifact's datasets (``read_artifact(..., "scenes")``) or ``SceneSet.as_datasets()``."""
-    if "pose_error_translation" not in scenes:
-        return None
-    error = make_pose(rotvec_to_rotmat(np.asarray(scenes["pose_error_rotvec"][s])),
-                      np.asarray(scenes["pose_error_translation"][s]))
-    return np.asarray(scenes["T_world_sensors"][s]) @ invert_pose(error)
