@@ -1,0 +1,24 @@
+"""scripts/cpu_digests.py: the lines two machines compare."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+spec = importlib.util.spec_from_file_location("cpu_digests", Path(__file__).parents[1] / "scripts" / "cpu_digests.py")
+cpu_digests = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(cpu_digests)
+
+
+def test_the_cpu_is_named():
+    identity = cpu_digests.cpu_identity()
+    assert set(identity) == {"cpu", "vendor", "family", "model", "avx512f"}
+    assert identity["vendor"] in ("GenuineIntel", "AuthenticAMD") and identity["family"].isdigit()
+
+
+@pytest.mark.slow
+def test_turning_onednn_off_changes_the_autoencoder_alone():
+    """The variant does what it says: the convolutions take another path (other bits), nothing else moves."""
+    pinned, off = (cpu_digests.run_child(prelude) for prelude in cpu_digests.VARIANTS.values())
+    assert pinned["autoencoder"] != off["autoencoder"]
+    assert {k: v for k, v in pinned.items() if k != "autoencoder"} == {k: v for k, v in off.items() if k != "autoencoder"}
