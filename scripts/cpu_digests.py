@@ -3,8 +3,9 @@
     python scripts/cpu_digests.py
 
 Runs ``tests/isa_child.py`` (two epochs of a small autoencoder, the paper's gradient descent, NumPy's
-transcendental loops, LAPACK) in a subprocess under the pipeline's pinned environment
-(``tactile6d.runtime.instruction_sets``), once as the stages run it and once with PyTorch's oneDNN turned off
+transcendental loops, LAPACK) and one epoch of the pipeline's own autoencoder (conf/ae/cpu.yaml: its layers, two
+threads, on 128 blob images; ``pipeline_autoencoder``) in subprocesses under the pipeline's pinned environment
+(``tactile6d.runtime.instruction_sets``), once as the stages run them and once with PyTorch's oneDNN turned off
 (convolutions then go through ATen and MKL), and prints one JSON line each with the CPU's name, vendor,
 family and model. Two machines whose lines differ would not make the same bits in ``train_ae``; which
 digest differs says which library. The lines measured so far are in docs/reproducibility.md (Across machines).
@@ -44,15 +45,45 @@ def cpu_identity() -> dict[str, str]:
     return out
 
 
+def pipeline_autoencoder_digest() -> str:
+    """One epoch of the pipeline's autoencoder (conf/ae/cpu.yaml, reconstruction loss) on 128 blob images ->
+    the digest of its weights. Run in the child, where the environment is pinned."""
+    import hashlib
+
+    import numpy as np
+    from omegaconf import OmegaConf
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_autoencoder import background, blob_images
+
+    from tactile6d.perception import autoencoder as ae
+
+    cfg = dict(OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "ae" / "cpu.yaml")))
+    cfg.update(epochs=1, rank_weight=0.0, device="cpu")
+    bg = background()
+    model, _, _ = ae.train(blob_images(128, np.random.default_rng(0), bg), bg, cfg, seed=0, progress=False)
+    h = hashlib.sha256()
+    for value in model.state_dict().values():
+        h.update(np.ascontiguousarray(value.numpy()).tobytes())
+    return h.hexdigest()[:16]
+
+
 def run_child(prelude: str | None) -> dict:
-    """tests/isa_child.py under the pinned environment, after ``prelude`` (Python) when given -> its digests."""
+    """tests/isa_child.py and ``pipeline_autoencoder_digest`` under the pinned environment, after ``prelude``
+    (Python) when given -> their digests."""
     env = instruction_sets.pinned_environment(dict(os.environ, OPENBLAS_NUM_THREADS="1"))
-    if prelude is None:
-        command = [sys.executable, str(CHILD)]
-    else:
-        command = [sys.executable, "-c", f"{prelude}; import runpy; runpy.run_path({str(CHILD)!r}, run_name='__main__')"]
-    done = subprocess.run(command, env=env, capture_output=True, text=True, check=True, cwd=ROOT)
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    start = "" if prelude is None else prelude + "; "
+    children = {
+        None: f"import runpy; runpy.run_path({str(CHILD)!r}, run_name='__main__')",
+        "pipeline_autoencoder": (f"import json, runpy; f = runpy.run_path({__file__!r})['pipeline_autoencoder_digest']; "
+                                 "print(json.dumps({'pipeline_autoencoder': f()}))"),
+    }
+    out: dict = {}
+    for code in children.values():
+        done = subprocess.run([sys.executable, "-c", start + code], env=env, capture_output=True, text=True, check=True,
+                              cwd=ROOT)
+        out.update(json.loads(done.stdout.strip().splitlines()[-1]))
+    return out
 
 
 def main() -> int:
