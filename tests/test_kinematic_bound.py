@@ -131,3 +131,20 @@ def test_the_true_sensor_poses_are_recovered_from_a_kinematic_set():
 
 def test_a_set_without_sensor_pose_errors_has_no_true_poses_to_offer():
     assert kb.true_sensor_poses(posed_set().as_datasets(), 0) is None
+
+
+def test_the_script_bounds_every_scene_of_a_perturbed_set_and_refuses_a_clean_one():
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("kinematic_bound_script",
+                                                  Path(__file__).parents[1] / "scripts" / "kinematic_bound.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    clean = posed_set()
+    off = perturb.perturb_sensor_poses(clean, SIGMA_M, SIGMA_RAD, np.random.default_rng(8)).as_datasets()
+    expected, realised = script.set_bounds(off, SIGMA_M, SIGMA_RAD)
+    assert len(expected) == len(realised) == len(clean)
+    assert all(e > 0 for e in expected) and all(r > 0 for r in realised)
+    with pytest.raises(SystemExit):
+        script.set_bounds(clean.as_datasets(), SIGMA_M, SIGMA_RAD)
