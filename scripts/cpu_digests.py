@@ -35,13 +35,15 @@ def cpu_identity() -> dict[str, str]:
     """The first processor's name, vendor, family and model as /proc/cpuinfo gives them."""
     keys = {"model name": "cpu", "vendor_id": "vendor", "cpu family": "family", "model": "model"}
     out: dict[str, str] = {}
+    flags = ""
     for line in Path("/proc/cpuinfo").read_text().splitlines():
         key, _, value = line.partition(":")
         name = keys.get(key.strip())
         if name and name not in out:
             out[name] = value.strip()
-    flags = next((ln for ln in Path("/proc/cpuinfo").read_text().splitlines() if ln.startswith("flags")), "")
-    out["avx512f"] = str(" avx512f" in flags)
+        elif key.strip() == "flags" and not flags:
+            flags = value
+    out["avx512f"] = str("avx512f" in flags.split())
     return out
 
 
@@ -73,13 +75,13 @@ def run_child(prelude: str | None) -> dict:
     (Python) when given -> their digests."""
     env = instruction_sets.pinned_environment(dict(os.environ, OPENBLAS_NUM_THREADS="1"))
     start = "" if prelude is None else prelude + "; "
-    children = {
-        None: f"import runpy; runpy.run_path({str(CHILD)!r}, run_name='__main__')",
-        "pipeline_autoencoder": (f"import json, runpy; f = runpy.run_path({__file__!r})['pipeline_autoencoder_digest']; "
-                                 "print(json.dumps({'pipeline_autoencoder': f()}))"),
-    }
+    children = (
+        f"import runpy; runpy.run_path({str(CHILD)!r}, run_name='__main__')",
+        (f"import json, runpy; f = runpy.run_path({__file__!r})['pipeline_autoencoder_digest']; "
+         "print(json.dumps({'pipeline_autoencoder': f()}))"),
+    )
     out: dict = {}
-    for code in children.values():
+    for code in children:
         done = subprocess.run([sys.executable, "-c", start + code], env=env, capture_output=True, text=True, check=True,
                               cwd=ROOT)
         out.update(json.loads(done.stdout.strip().splitlines()[-1]))
