@@ -26,8 +26,8 @@ it; shell patterns such as ``render_database@*`` select several) it:
    directory, using the recorded version from the workspace or the DVC cache when either holds it.
 
 ``--ignore-timings`` does not compare datasets, attributes and JSON keys whose names look like timings
-(``seconds``, ``seconds_*``, ``*_seconds``, ``time_s*``, ``wall_s``, ``*_s``, ``*_per_s``): an out that
-differs only there counts as identical, and the line says which names were left out.
+(``seconds``, ``seconds_*``, ``*_seconds``, ``ms``, ``*_ms``, ``*_ms_*``, ``time_s*``, ``wall_s``, ``*_s``,
+``*_per_s``): an out that differs only there counts as identical, and the line says which names were left out.
 
 ``--against OLD`` re-makes nothing: after a full ``dvc repro`` of this workspace, it compares every out that
 this workspace's dvc.lock records with what OLD's dvc.lock records for the same stage (OLD: another
@@ -60,7 +60,7 @@ from pathlib import Path
 # A name (an HDF5 dataset or attribute, a JSON key, or any folder of its path) that holds a duration or
 # a rate measured on the clock: these change from one run to the next with the same code.
 TIMES_DIR = "artifacts/times"  # each stage's wall-time record: a timing by definition
-TIMING_NAME = re.compile(r"(^|_)(seconds|secs|time_s|wall_s|elapsed)(_|$)|_s$|_per_s$", re.IGNORECASE)
+TIMING_NAME = re.compile(r"(^|_)(seconds|secs|ms|time_s|wall_s|elapsed)(_|$)|_s$|_per_s$", re.IGNORECASE)
 MAX_DETAIL_LINES = 12  # per out: enough to see what differs without burying the summary
 
 OK, DIFFERS, UNVERIFIED = 0, 1, 2  # exit statuses, worst wins

@@ -126,9 +126,11 @@ def repo(built_repo, tmp_path):
 
 def test_timing_names():
     for name in ("seconds", "seconds_encode", "timing/seconds_total", "load_seconds", "time_s_median",
-                 "ours.time_s_encode_median", "wall_s", "median_s", "images_per_s"):
+                 "ours.time_s_encode_median", "wall_s", "median_s", "images_per_s",
+                 "summary.update_ms_median", "update_median_ms", "ms"):
         assert verify_lock.is_timing(name), name
-    for name in ("values", "total", "pos_err_cm_top1", "n_poses", "points", "sensors", "spacing/nn_mean_m"):
+    for name in ("values", "total", "pos_err_cm_top1", "n_poses", "points", "sensors", "spacing/nn_mean_m",
+                 "items", "terms", "mse"):
         assert not verify_lock.is_timing(name), name
 
 
