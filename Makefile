@@ -29,8 +29,13 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
+# The suite on both cores (pytest-xdist): alone it keeps about 1.15 of the 2 cores busy, since many tests
+# wait on subprocesses or run one thread. loadfile keeps a file's tests on one worker, so a module's
+# fixtures (rendered sets, trained models) are built once.
+TEST_WORKERS ?= 2
+
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The target times itself, install included: make expands REPRODUCE_STARTED (`:=`) as it reads this file,
 # before it builds the install prerequisite; record_reproduce_time.py writes artifacts/times/make_reproduce.json
