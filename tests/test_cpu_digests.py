@@ -1,13 +1,11 @@
 """scripts/cpu_digests.py: the lines two machines compare."""
 
-import importlib.util
-from pathlib import Path
 
 import pytest
 
-spec = importlib.util.spec_from_file_location("cpu_digests", Path(__file__).parents[1] / "scripts" / "cpu_digests.py")
-cpu_digests = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(cpu_digests)
+from script_loader import load_script
+
+cpu_digests = load_script("cpu_digests")
 
 
 def test_the_cpu_is_named():

@@ -1,7 +1,6 @@
 """scripts/dvc_fast_lock.py: dvc.lock updated entry by entry writes the bytes DVC's own dumper writes."""
 
 import copy
-import importlib.util
 import os
 import shutil
 import subprocess
@@ -10,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
+from script_loader import load_script
+
 ROOT = Path(__file__).parents[1]
-spec = importlib.util.spec_from_file_location("dvc_fast_lock", ROOT / "scripts" / "dvc_fast_lock.py")
-fast_lock = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(fast_lock)
+fast_lock = load_script("dvc_fast_lock")
 
 from dvc.utils.serialize._yaml import parse_yaml  # noqa: E402
 

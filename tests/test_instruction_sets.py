@@ -11,7 +11,6 @@ AVX-512 and with other cache sizes): the bits must equal this machine's, which i
 every CPU" asks of the stages; they are skipped where the kernel offers no CPUID faulting.
 """
 
-import importlib.util
 import json
 import os
 import subprocess
@@ -21,11 +20,10 @@ from pathlib import Path
 import pytest
 
 from tactile6d.runtime import instruction_sets as isa
+from script_loader import load_script
 
 HERE = Path(__file__).resolve().parent
-_spec = importlib.util.spec_from_file_location("cpu_disguise", HERE.parent / "scripts" / "cpu_disguise.py")
-cpu_disguise = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(cpu_disguise)
+cpu_disguise = load_script("cpu_disguise")
 
 
 def test_a_bare_environment_gets_every_cap():

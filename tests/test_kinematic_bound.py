@@ -7,6 +7,7 @@ from tactile6d.core.geometry import invert_pose, make_pose, orthonormal_frame, r
 from tactile6d.evaluation import kinematic_bound as kb
 from tactile6d.sim import perturb
 from tactile6d.sim.scenes import SceneSet
+from script_loader import load_script
 
 SIGMA_M, SIGMA_RAD = 0.0015, np.radians(1.5)
 
@@ -134,13 +135,7 @@ def test_a_set_without_sensor_pose_errors_has_no_true_poses_to_offer():
 
 
 def test_the_script_bounds_every_scene_of_a_perturbed_set_and_refuses_a_clean_one():
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("kinematic_bound_script",
-                                                  Path(__file__).parents[1] / "scripts" / "kinematic_bound.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load_script("kinematic_bound")
     clean = posed_set()
     off = perturb.perturb_sensor_poses(clean, SIGMA_M, SIGMA_RAD, np.random.default_rng(8)).as_datasets()
     expected, realised = script.set_bounds(off, SIGMA_M, SIGMA_RAD)

@@ -1,16 +1,13 @@
 """scripts/pose_floor.py: its figures' units (the true sensor poses it estimates through: tests/test_kinematic_bound.py)."""
 
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from tactile6d.core.geometry import make_pose
+from script_loader import load_script
 
-spec = importlib.util.spec_from_file_location("pose_floor", Path(__file__).parents[1] / "scripts" / "pose_floor.py")
-pose_floor = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(pose_floor)
+pose_floor = load_script("pose_floor")
 
 
 def test_positions_are_compared_in_centimetres():

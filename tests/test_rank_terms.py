@@ -1,16 +1,13 @@
 """scripts/rank_terms.py: the recorded calls become weighted score terms, and the rank module is left as it was."""
 
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 from omegaconf import OmegaConf
 
 import tactile6d.estimation.rank as rank_module
+from script_loader import load_script
 
-spec = importlib.util.spec_from_file_location("rank_terms", Path(__file__).parents[1] / "scripts" / "rank_terms.py")
-rank_terms = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(rank_terms)
+rank_terms = load_script("rank_terms")
 
 
 def test_the_terms_are_weighted_as_rank_scores_them():

@@ -9,12 +9,12 @@ correctly rounded arithmetic, so the images are bit-identical under all of them;
 changes the sensor poses in their last bits (the pin keeps it on one kernel for every machine here).
 """
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from script_loader import load_script
 
 pytestmark = pytest.mark.slow  # end-to-end: excluded from the quick subset (-m 'not slow')
 
@@ -29,15 +29,7 @@ KEYS = ("grid", "images", "masks", "noisy", "poses")
 POSE_MAX_DIFFERENCE = 2.3e-16
 
 
-def _load_script():
-    spec = importlib.util.spec_from_file_location("render_reproducibility", REPO / "scripts" / "render_reproducibility.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-rr = _load_script()
+rr = load_script("render_reproducibility")
 
 
 @pytest.fixture(scope="module")

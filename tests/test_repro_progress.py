@@ -1,13 +1,12 @@
 """scripts/repro_progress.py: `dvc repro` with each stage DVC comes to numbered, [k/N], on DVC's own output."""
 
-import importlib.util
 import sys
 import textwrap
 from pathlib import Path
 
-spec = importlib.util.spec_from_file_location("repro_progress", Path(__file__).parents[1] / "scripts" / "repro_progress.py")
-repro_progress = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(repro_progress)
+from script_loader import load_script
+
+repro_progress = load_script("repro_progress")
 
 # What `dvc repro` 3.67 writes to stdout (its info log and the stages' own prints) for a pipeline of 4 stages
 # resumed after a failure: one unchanged, one restored from the run cache, two run.

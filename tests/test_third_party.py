@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib.util
 import json
 import os
 import threading
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from script_loader import load_script
 from tactile6d.core.errors import DataError
 from tactile6d.data import third_party
 
@@ -108,16 +108,11 @@ def files_under(path: Path) -> list[Path]:
 # --- manifest -------------------------------------------------------------------------------------
 
 
-def load_script():
-    spec = importlib.util.spec_from_file_location("make_data_manifest", REPO / "scripts" / "make_data_manifest.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @needs_shared
 def test_manifest_matches_the_data_directory_exactly():
-    script = load_script()
+    script = load_script("make_data_manifest")
     assert script.build_manifest(SHARED) == third_party.load_manifest()
     # the file on disk is what the script writes, byte for byte (no hand edits)
     assert third_party.MANIFEST_PATH.read_text() == script.dumps(third_party.load_manifest())

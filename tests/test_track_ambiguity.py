@@ -1,7 +1,5 @@
 """scripts/track_ambiguity.py: how well a pose's presses match the recorded ones, with the project's renderer."""
 
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,10 +8,9 @@ import trimesh
 from tactile6d.core import geometry as g
 from tactile6d.core.sensor import sensor_poses_touching
 from tactile6d.sim.render import DigitRenderer, mesh_arrays
+from script_loader import load_script
 
-spec = importlib.util.spec_from_file_location("track_ambiguity", Path(__file__).parents[1] / "scripts" / "track_ambiguity.py")
-track_ambiguity = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(track_ambiguity)
+track_ambiguity = load_script("track_ambiguity")
 
 pytestmark = pytest.mark.slow  # it renders
 

@@ -2,16 +2,14 @@
 long `make reproduce` took from the run's own record (scripts/record_reproduce_time.py)."""
 
 import datetime
-import importlib.util
 from pathlib import Path
 
 import pytest
 
 from tactile6d.runtime import stage_clock
+from script_loader import load_script
 
-spec = importlib.util.spec_from_file_location("update_readme", Path(__file__).parents[1] / "scripts" / "update_readme.py")
-update_readme = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(update_readme)
+update_readme = load_script("update_readme")
 
 PAGE = """Generated on a day.
 
@@ -73,10 +71,7 @@ def test_a_page_without_a_headline_section_is_an_error():
         update_readme.headline(PAGE.replace("### Per object (caddeo2023)", "").replace("### Off-axis", "### Other"))
 
 
-record_spec = importlib.util.spec_from_file_location(
-    "record_reproduce_time", Path(__file__).parents[1] / "scripts" / "record_reproduce_time.py")
-record_reproduce_time = importlib.util.module_from_spec(record_spec)
-record_spec.loader.exec_module(record_reproduce_time)
+record_reproduce_time = load_script("record_reproduce_time")
 
 README = """# project
 

@@ -5,25 +5,21 @@ out), then, if the data are there, on the project's own sample_surface@036_wood_
 """
 
 import hashlib
-import importlib.util
-import json
 import os
 import shutil
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
+
+from script_loader import load_script
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPT = REPO / "scripts" / "verify_lock.py"
 BIN = os.path.dirname(sys.executable)
 
-spec = importlib.util.spec_from_file_location("verify_lock", SCRIPT)
-verify_lock = importlib.util.module_from_spec(spec)
-sys.modules["verify_lock"] = verify_lock  # its dataclasses look their module up there
-spec.loader.exec_module(verify_lock)
+verify_lock = load_script("verify_lock")
 
 # Stage 1 writes a list and a "timing"; stage 2 sums it into an HDF5 file, a folder of parts and a
 # markdown table. The timings come from FAKE_SECONDS so that a test can move them and nothing else.
