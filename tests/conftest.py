@@ -6,6 +6,14 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 
+def pytest_collection_modifyitems(config, items):
+    """The files with ``slow`` tests first (their order within kept): ``make test`` gives whole files to
+    its two workers in collection order (pytest-xdist ``--dist loadfile``), and a long file handed out last
+    would run alone at the end."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)
+
+
 def find_data_dir() -> Path | None:
     """The third-party data: $TACTILE6D_DATA, else ../shared/data beside the repository."""
     env = os.environ.get("TACTILE6D_DATA")
