@@ -108,8 +108,6 @@ def files_under(path: Path) -> list[Path]:
 # --- manifest -------------------------------------------------------------------------------------
 
 
-
-
 @needs_shared
 def test_manifest_matches_the_data_directory_exactly():
     script = load_script("make_data_manifest")
