@@ -29,10 +29,10 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-# The suite on both cores (pytest-xdist): alone it keeps about 1.15 of the 2 cores busy, since many tests
-# wait on subprocesses or run one thread. loadfile keeps a file's tests on one worker, so a module's
-# fixtures (rendered sets, trained models) are built once.
-TEST_WORKERS ?= 2
+# One worker by default. TEST_WORKERS=2 runs the suite on both cores (pytest-xdist; loadfile keeps a file's
+# tests on one worker, so a module's fixtures are built once) in about half the time, but there one run of
+# five failed test_interrupt's busy-map case (a thread's traceback on stderr at SIGINT): a race not yet fixed.
+TEST_WORKERS ?= 1
 
 test: install
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
