@@ -218,3 +218,44 @@ def test_an_executor_interrupted_in_map_ends_its_workers_at_once(tmp_path):
     while any(alive(pid) for pid in workers) and time.monotonic() - stopped < STOP_S:
         time.sleep(0.02)
     assert not any(alive(pid) for pid in workers)
+
+
+def test_an_interrupt_while_the_workers_die_leaves_no_thread_traceback(tmp_path, monkeypatch):
+    """A terminal's Ctrl-C ends the workers and interrupts this process at once. The pool's manager
+    thread then marks the pool broken while this thread unwinds; a future cancelled from this thread
+    meanwhile made Python < 3.12 print the manager thread's traceback (CPython gh-107219), which one
+    run in five of ``test_an_interrupted_map_stops_with_its_workers[2-True-busy]`` hit on two busy cores.
+    Here the manager waits 0.5 s before marking the pool broken, so that the race always has its window."""
+    from concurrent.futures import process as pool_internals
+
+    thread_errors = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: thread_errors.append(args.exc_value))
+    terminate_broken = pool_internals._ExecutorManagerThread.terminate_broken
+
+    def late_terminate_broken(manager, cause):
+        time.sleep(0.5)
+        terminate_broken(manager, cause)
+
+    monkeypatch.setattr(pool_internals._ExecutorManagerThread, "terminate_broken", late_terminate_broken)
+
+    def end_workers_then_interrupt():
+        deadline = time.monotonic() + START_S
+        while len(list(tmp_path.glob("pid-*"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for p in tmp_path.glob("pid-*"):
+            os.kill(int(p.name.split("-")[1]), signal.SIGKILL)  # the workers die of the Ctrl-C first
+        time.sleep(0.1)  # the manager has seen them die and waits in terminate_broken
+        signal.pthread_kill(main, signal.SIGINT)
+
+    main = threading.main_thread().ident
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        helper = threading.Thread(target=end_workers_then_interrupt, daemon=True)
+        helper.start()
+        with pytest.raises(KeyboardInterrupt):
+            with ex.LocalExecutor(2) as executor:
+                executor.map(report_and_sleep, [tmp_path] * 8, [30.0] * 8)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    helper.join()
+    assert thread_errors == []

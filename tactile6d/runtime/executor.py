@@ -296,8 +296,14 @@ class LocalExecutor(Executor):
                     bar.update(1)
                     yield index[future], result
         finally:  # a task raised or the caller stopped early: drop what has not started
-            for future in futures:
-                future.cancel()
+            if not _interrupted():
+                for future in futures:
+                    future.cancel()
+            # While an interrupt unwinds, the pool's shutdown (``close``, ``shutdown_pool``) cancels them in
+            # its manager thread instead. Cancelled from this thread while the workers die of the same
+            # Ctrl-C, a future can still be on the manager's list when it marks the pool broken: Python
+            # before 3.12 then fails to set its error (InvalidStateError, CPython gh-107219) and prints
+            # the manager thread's traceback.
 
     def describe(self) -> str:
         return "this process" if self.workers == 1 else f"{self.workers} local worker processes"
