@@ -29,10 +29,9 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-# One worker by default. TEST_WORKERS=2 runs the suite on both cores (pytest-xdist; loadfile keeps a file's
-# tests on one worker, so a module's fixtures are built once) in about half the time, but there one run of
-# five failed test_interrupt's busy-map case (a thread's traceback on stderr at SIGINT): a race not yet fixed.
-TEST_WORKERS ?= 1
+# Both cores by default (pytest-xdist; loadfile keeps a file's tests on one worker, so a module's fixtures
+# are built once): about half the time of one worker. TEST_WORKERS=1 runs the suite in one worker.
+TEST_WORKERS ?= 2
 
 test: install
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
