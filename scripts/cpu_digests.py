@@ -7,7 +7,7 @@ transcendental loops, LAPACK) and one epoch of the pipeline's own autoencoder (c
 threads, on 128 blob images; ``pipeline_autoencoder``) in subprocesses under the pipeline's pinned environment
 (``tactile6d.runtime.instruction_sets``), once as the stages run them and once with PyTorch's oneDNN turned off
 (convolutions then go through ATen and MKL), and prints one JSON line each with the CPU's name, vendor,
-family and model. Two machines whose lines differ would not make the same bits in ``train_ae``; which
+family, model, threads per core and data caches (size / processors sharing it). Two machines whose lines differ would not make the same bits in ``train_ae``; which
 digest differs says which library. The lines measured so far are in docs/reproducibility.md (Across machines).
 """
 
@@ -44,7 +44,39 @@ def cpu_identity() -> dict[str, str]:
         elif key.strip() == "flags" and not flags:
             flags = value
     out["avx512f"] = str("avx512f" in flags.split())
+    out.update(cpu_topology())
     return out
+
+
+def _cpu_count(cpu_list: str) -> int:
+    """How many processors a Linux CPU list such as ``0-1,4`` names."""
+    count = 0
+    for part in cpu_list.strip().split(","):
+        first, _, last = part.partition("-")
+        count += int(last or first) - int(first) + 1
+    return count
+
+
+def cpu_topology(sysfs: Path = Path("/sys/devices/system/cpu/cpu0")) -> dict[str, str]:
+    """The first processor's threads per core and data caches as the kernel reads them from CPUID:
+    ``{"threads_per_core": "1", "caches": "L1 32K/1 L2 512K/1 L3 32768K/2"}``, each cache's size over the
+    processors that share it. Libraries size their blocking by the cache per core (oneDNN: size / sharing),
+    which the CPU disguise (scripts/cpu_disguise.py) does not mimic from a real machine's answers; empty
+    values where the kernel exposes no such files."""
+    try:
+        threads = str(_cpu_count((sysfs / "topology" / "thread_siblings_list").read_text()))
+    except OSError:
+        threads = ""
+    caches = []
+    for index in sorted(sysfs.glob("cache/index*")):
+        try:
+            if (index / "type").read_text().strip() == "Instruction":
+                continue
+            caches.append(f"L{(index / 'level').read_text().strip()} {(index / 'size').read_text().strip()}/"
+                          f"{_cpu_count((index / 'shared_cpu_list').read_text())}")
+        except OSError:
+            continue
+    return {"threads_per_core": threads, "caches": " ".join(caches)}
 
 
 def pipeline_autoencoder_digest() -> str:

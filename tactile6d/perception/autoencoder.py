@@ -338,7 +338,9 @@ def fit_normalisation(
     sum_sq = torch.zeros(3, dtype=torch.float64)
     for sl in _chunks(diffs.shape[0], _PREPROCESS_CHUNK):
         sum_sq += diffs[sl].double().pow(2).sum(dim=(0, 2, 3))
-    rms = (sum_sq / max(1, diffs.shape[0] * diffs.shape[2] * diffs.shape[3])).sqrt()
+    # NumPy's sqrt, IEEE's correctly rounded one: torch's goes through MKL's vector math (VML, 1 ulp), which
+    # starts from the CPU's rsqrt approximation, and that differs between Intel and AMD CPUs.
+    rms = torch.from_numpy(np.sqrt((sum_sq / max(1, diffs.shape[0] * diffs.shape[2] * diffs.shape[3])).numpy()))
     rms = torch.where(rms > 1e-6, rms, torch.ones_like(rms))
     return Normalisation(height=height, width=width, scale=tuple(float(s) for s in rms), peak_floor=peak_floor,
                          offset=offset)
@@ -474,7 +476,9 @@ def train(
         }
 
         model = build_model(c).to(device)
-        optimiser = torch.optim.Adam(model.parameters(), lr=c.learning_rate)
+        # The fused kernel takes its square roots with the CPU's exact sqrt instruction; the default one calls
+        # torch.sqrt, i.e. MKL's VML, whose last bit depends on the CPU's vendor (see fit_normalisation).
+        optimiser = torch.optim.Adam(model.parameters(), lr=c.learning_rate, fused=True)
         shuffler = torch.Generator().manual_seed(seed)
         epochs = range(c.epochs)
         if progress:
