@@ -65,11 +65,11 @@ def test_training_and_encoding_run_no_approximate_instruction_of_mkls_vector_mat
     Adam's, ran them (``vmsSqrt``), which trained other weights on an AMD CPU than on an Intel one."""
     setup = "\n".join([
         "import sys, numpy as np, torch",
-        "sys.path.insert(0, 'tests')",
+        f"sys.path.insert(0, {str(approx.ROOT / 'tests')!r})",
         "from omegaconf import OmegaConf",
         "from tactile6d.perception import autoencoder as ae",
         "from test_autoencoder import background, blob_images",
-        "cfg = dict(OmegaConf.to_container(OmegaConf.load('conf/ae/cpu.yaml')))",
+        f"cfg = dict(OmegaConf.to_container(OmegaConf.load({str(approx.ROOT / 'conf' / 'ae' / 'cpu.yaml')!r})))",
         "cfg.update(epochs=1, device='cpu')",
         "bg = background(); rng = np.random.default_rng(0)",
         "images = blob_images(64, rng, bg); sharpness = rng.integers(-1, 3, 64)",
