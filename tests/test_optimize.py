@@ -127,6 +127,48 @@ def test_gd_step_is_the_gradient_of_the_loss():
     np.testing.assert_allclose(grad, numeric, atol=1e-7)
 
 
+def test_gd_steps_are_repeated_single_steps_with_each_gain_on_its_components():
+    # Three steps at gains (0.3, 0.7) against a naive loop: xi <- xi - diag(0.3 I3, 0.7 I3) dE/dxi, the
+    # gradient by central differences, in float64.
+    rng = np.random.default_rng(15)
+    p, s, T = _scene(rng, 3, noise=0.01)
+    R0 = g.random_rotations(1, rng)
+    t0 = T[:3, 3] + rng.normal(scale=0.02, size=3)
+
+    def loss(xi):
+        return opt.poses_to_losses(g.xi_to_pose(xi)[None], p[None], s)[0]
+
+    xi = np.concatenate([t0, g.rotmat_to_rotvec(R0[0])])
+    gains = np.array([0.3] * 3 + [0.7] * 3)
+    for _ in range(3):
+        xi = xi - gains * np.array([(loss(xi + 1e-6 * e) - loss(xi - 1e-6 * e)) / 2e-6 for e in np.eye(6)])
+    fit = opt.fit_gd(p[None], s, R0, t0[None], 3, 0.3, 0.7, precision="float64")
+    np.testing.assert_allclose(g.pose_to_xi(fit.poses[0]), xi, atol=1e-7)
+
+
+def test_gd_batch_size_is_the_least_padded_size_of_few():
+    # Naive reference: every size c * 2^k (16 <= c <= 31, and 1..15) that is a multiple, the least >= n.
+    sizes = sorted({c * 2**k for k in range(14) for c in range(16, 32)} | set(range(1, 16)))
+    for multiple in (1, 64, 128):
+        for n in [1, 5, 16, 31, 33, 100, 255, 4080, 50685, 58860, 75000]:
+            expected = min(x for x in sizes if x >= n and x % multiple == 0)
+            assert opt.gd_batch_size(n, multiple) == expected, (n, multiple)
+            assert opt.gd_batch_size(n, multiple) <= max(1.0625 * n, n + 2 * multiple)
+
+
+def test_gd_poses_do_not_depend_on_the_rest_of_the_batch():
+    # A tuple's poses are the same bits alone (padded to 64 poses) and among 40 other tuples (to 768),
+    # so neither the padding nor the tuple count of an estimate moves them.
+    rng = np.random.default_rng(16)
+    p = rng.normal(scale=0.05, size=(41, 3, 3))
+    s = p[0] + 0.1
+    R0 = g.random_rotations(41, rng)
+    t0 = opt.initial_translations(s, 0.2)
+    alone = opt.fit_gd(p[:1], s, R0[:1], t0, 30, 0.01, 1.0)
+    among = opt.fit_gd(p, s, R0, t0, 30, 0.01, 1.0)
+    np.testing.assert_array_equal(among.poses[among.tuple_index == 0], alone.poses)
+
+
 @pytest.mark.slow
 def test_gd_converges_with_small_gains_and_cycles_within_a_bound_with_the_papers():
     # With plain distances every residual's gradient has unit norm, so at the paper's gains
