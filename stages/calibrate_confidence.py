@@ -9,17 +9,23 @@ on the ranked poses' features. Writes ``artifacts/confidence/model.json`` (what 
 ``artifacts/confidence/fit.json`` (per scene: features, outcome, probability, the ranked poses' scores and
 distances from the best) and
 ``artifacts/metrics/confidence.json`` (on its own scenes: AUROC, Brier score, reliability bins).
+
+One executor task per scene (``tactile6d.runtime.executor``): ``executor.workers`` local processes by
+default, a Dask cluster's workers when ``executor.address`` names one; each worker process loads an object's
+estimator once. The rows come back in scene order, so the fit is the same wherever the tasks ran.
 """
 
 from __future__ import annotations
 
 import sys
+import uuid
 import warnings
 
 import numpy as np
-from tqdm import tqdm
+from omegaconf import OmegaConf
 
 from tactile6d.core import metrics
+from tactile6d.core.config import config_for_workers
 from tactile6d.core.errors import ConfigError, exit_on_error
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_json, write_text
@@ -27,41 +33,64 @@ from tactile6d.estimation import confidence
 from tactile6d.estimation.estimator import Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.evaluation import scoring
+from tactile6d.evaluation.sensor_subsets import scene_task_input
 from tactile6d.perception import photometric
+from tactile6d.runtime.executor import executor_from_config, process_cache
 from tactile6d.runtime.stage_args import parse_stage_args
 from tactile6d.runtime.stage_clock import timed
-from tactile6d.sim.scenes import scene_set_from_artifact
 
 SCENE_SET = "confidence"
 
 
+def confidence_scene_task(run: str, cfg_container: dict, scene: dict) -> tuple:
+    """One task: a scene (``sensor_subsets.scene_task_input``) estimated as a user does -> (features (F,), ADI of
+    the best pose (m), the ranked poses' scores, their distances from the best, light warnings), or None when
+    nothing was ranked. The object's estimator and reference are kept per process (``process_cache``)."""
+    cfg = process_cache(("confidence config", run), lambda: OmegaConf.create(cfg_container), slot="confidence config")
+    obj = str(scene["object"])
+    estimator, points, ref = process_cache(
+        ("confidence estimator", run, obj), lambda: _object_state(cfg, obj), slot="confidence estimator")
+    light_warnings = 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        est = estimator.estimate(scene["T_world_sensors"], scene["images"], scene["backgrounds"])
+    for w in caught:  # a drifted light is expected on these scenes: counted; anything else shown
+        if issubclass(w.category, photometric.LightWarning):
+            light_warnings += 1
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if len(est.poses) == 0:  # nothing ranked: no confidence to learn from
+        return None, light_warnings
+    adi = float(metrics.adi(ref.points, est.poses[0], scene["T_world_object"], ref.tree))
+    distances = confidence.distances_from_best(points, est.poses)
+    return (confidence.features(est.scores, distances), adi, est.scores, distances), light_warnings
+
+
+def _object_state(cfg, obj: str):
+    """An object's estimator, its spread points (``confidence.spread_points``) and its scoring reference."""
+    estimator = Estimator.from_artifacts(obj, cfg.paths.artifacts_dir, cfg)
+    return estimator, confidence.spread_points(estimator.points), scoring.load_object_reference(cfg.paths.artifacts_dir, obj)
+
+
 def main(argv: list[str] | None = None) -> int:
     _, cfg = parse_stage_args(argv, __doc__.splitlines()[0])
-    use_cpu_devices_for(cfg.optimize.solver, cfg.optimize.cpu_devices)  # before JAX runs anything
+    workers = int(cfg.executor.workers)
+    if workers < 1:
+        raise ConfigError(f"executor.workers must be >= 1, got {workers}")
     artifacts = cfg.paths.artifacts_dir
-    scenes = scene_set_from_artifact(read_artifact(layout.scenes_file(artifacts, SCENE_SET), "scenes"))
-    objects = [str(o) for o in dict.fromkeys(scenes.objects.tolist())]
-    references = {o: scoring.load_object_reference(artifacts, o) for o in objects}
-
-    rows, light_warnings = [], 0
-    for obj in objects:
-        estimator = Estimator.from_artifacts(obj, artifacts, cfg)
-        points = confidence.spread_points(estimator.points)
-        ref = references[obj]
-        for s in tqdm(np.flatnonzero(scenes.objects == obj), desc=f"confidence scenes of {obj}", unit="scene"):
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                est = estimator.estimate(scenes.T_world_sensors[s], scenes.images[s], scenes.backgrounds_of(s))
-            for w in caught:  # a drifted light is expected on these scenes: counted; anything else shown
-                if issubclass(w.category, photometric.LightWarning):
-                    light_warnings += 1
-                else:
-                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-            if len(est.poses) == 0:  # nothing ranked: no confidence to learn from
-                continue
-            adi = float(metrics.adi(ref.points, est.poses[0], scenes.T_world_object[s], ref.tree))
-            distances = confidence.distances_from_best(points, est.poses)
-            rows.append((str(scenes.names[s]), confidence.features(est.scores, distances), adi, est.scores, distances))
+    scenes = read_artifact(layout.scenes_file(artifacts, SCENE_SET), "scenes")
+    objects = np.asarray(scenes["objects"]).astype(str)
+    # Object by object (each worker then loads an object's estimator about once), in the fit's row order.
+    order = [int(s) for obj in dict.fromkeys(objects.tolist()) for s in np.flatnonzero(objects == obj)]
+    n = len(order)
+    # The solver's JAX device count is set once per process, before any estimate (gd only).
+    initargs = (str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    with executor_from_config(cfg, max(1, min(workers, n)), initializer=use_cpu_devices_for,
+                              initargs=initargs) as executor:
+        results = executor.map(confidence_scene_task, [uuid.uuid4().hex] * n, [config_for_workers(cfg)] * n,
+                               [scene_task_input(scenes, s) for s in order], desc="confidence scenes")
+    rows = [(str(scenes["names"][s]), *row) for s, (row, _) in zip(order, results) if row is not None]
+    light_warnings = sum(count for _, count in results)
 
     x = np.array([r[1] for r in rows])
     success = np.array([r[2] < confidence.SUCCESS_ADI for r in rows])

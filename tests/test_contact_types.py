@@ -72,6 +72,28 @@ def _scene(rng):
     return T_gt, T_sensors
 
 
+def _winding_numbers_reference(mesh, points):
+    """Van Oosterom & Strackee over every (point, triangle) pair at once, through np.cross and np.linalg.norm."""
+    rel = np.asarray(mesh.triangles)[None] - np.asarray(points, dtype=np.float64)[:, None, None, :]
+    a, b, c = rel[..., 0, :], rel[..., 1, :], rel[..., 2, :]
+    la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
+    det = np.sum(a * np.cross(b, c), axis=-1)
+    den = la * lb * lc + np.sum(a * b, -1) * lc + np.sum(b * c, -1) * la + np.sum(c * a, -1) * lb
+    return np.sum(np.arctan2(det, den), axis=-1) / (2.0 * np.pi)
+
+
+def test_winding_numbers_are_the_reference_bits_and_one_inside_zero_outside():
+    rng = np.random.default_rng(3)
+    for mesh in (trimesh.creation.icosphere(subdivisions=3, radius=0.04),
+                 trimesh.creation.box(extents=(0.1, 0.06, 0.16)),
+                 trimesh.creation.cylinder(radius=0.03, height=0.1, sections=40)):
+        points = np.concatenate([rng.uniform(-0.09, 0.09, (40, 3)), mesh.vertices[:10] * 1.001])
+        fast = C.winding_numbers(mesh, points)
+        np.testing.assert_array_equal(fast, _winding_numbers_reference(mesh, points))
+        inside = mesh.contains(points[:40])
+        np.testing.assert_allclose(fast[:40], inside.astype(float), atol=1e-9)
+
+
 def test_contact_accuracy_at_the_true_pose(box):
     T_gt, T_sensors = _scene(np.random.default_rng(5))
     ok, details = _single(box, T_gt, T_gt, T_sensors)

@@ -8,16 +8,20 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_estimate_cli import artifacts, run, scene  # noqa: F401  (fixtures: prim_box artifacts, a triplet folder)
+from test_estimate_cli import T_TRUE, artifacts, run, scene  # noqa: F401  (fixtures: prim_box artifacts, a triplet folder)
 from test_estimator import make_estimator, world, write_object_artifacts  # noqa: F401  (world: a fixture)
 
+from stages import calibrate_confidence
+from tactile6d.core import geometry as g
 from tactile6d.core import metrics
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ArtifactError
 from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_scene_dir, write_artifact
 from tactile6d.estimation import confidence
 from tactile6d.estimation import estimator as est
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+from tactile6d.sim.scenes import SceneSet
 
 
 def hand_model(ambiguity_ratio: float = 0.5) -> confidence.ConfidenceModel:
@@ -162,3 +166,22 @@ def test_the_command_without_a_model_says_so_in_one_line(capsys, artifacts, scen
     code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts), "--json")
     result = json.loads(out)
     assert result["confidence"] is None and result["ambiguous"] is False and result["distinct_poses"] == []
+
+
+def test_the_stage_fits_the_same_model_in_one_process_and_on_two_workers(artifacts, scene):  # noqa: F811
+    # Four scenes of the triplet, two of them labelled 3 cm off their truth: two right, two wrong estimates.
+    T, images = read_scene_dir(scene)
+    truth = np.stack([T_TRUE, T_TRUE @ g.make_pose(np.eye(3), [0.03, 0.0, 0.0])] * 2)
+    write_artifact(layout.scenes_file(artifacts, "confidence"), "scenes", SceneSet(
+        names=np.array(["r0", "w0", "r1", "w1"]), objects=np.array(["prim_box"] * 4), T_world_object=truth,
+        T_world_sensors=np.stack([T] * 4), images=np.stack([images] * 4), contact_points=np.zeros((4, 3, 3)),
+        contact_normals=np.zeros((4, 3, 3)), contact_types=np.zeros((4, 3), dtype=np.int64)).as_datasets())
+    outputs = []
+    for workers in (1, 2):
+        assert calibrate_confidence.main([f"paths.artifacts_dir={artifacts}", "select.method=baseline", "select.N=400",
+                                          f"executor.workers={workers}"]) == 0
+        outputs.append([(layout.confidence_model_file(artifacts).parent / f).read_text() for f in ("model.json", "fit.json")]
+                       + [layout.metrics_file(artifacts, "confidence").read_text()])
+    assert outputs[0] == outputs[1]
+    fit = json.loads(outputs[0][1])
+    assert {n: fit[n]["adi_m"] < confidence.SUCCESS_ADI for n in fit} == {"r0": True, "w0": False, "r1": True, "w1": False}

@@ -39,9 +39,6 @@ CONTACT_TYPES = ("flat", "edge", "corner", "curved")
 FLAT, EDGE, CORNER, CURVED = range(4)
 NO_SURFACE = -1  # no surface facing the sensor near the point (e.g. a wrong pose puts it behind the object)
 
-# Points per winding-number batch: bounds the temporary (points x triangles x 3 x 3) arrays (~40 MB for 16k faces).
-_WINDING_BATCH = 24
-
 
 @dataclass(frozen=True)
 class ContactRule:
@@ -159,17 +156,23 @@ def winding_numbers(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     Sum over triangles of their signed solid angle seen from the point, over 4 pi (Van Oosterom &
     Strackee's formula). Unlike ray parity it degrades gracefully on meshes with small holes, such
     as 040_large_marker.
+
+    One point at a time over contiguous (F,) planes of the triangles' vertex coordinates: ten times
+    faster than strided (n, F, 3, 3) arrays through ``np.cross`` and ``np.linalg.norm``, and the same bits,
+    since every sum of three terms is added in their order, ``(x + y) + z`` (the test compares the two).
     """
     tris = np.asarray(mesh.triangles, dtype=np.float64)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    planes = [[np.ascontiguousarray(tris[:, v, k]) for k in range(3)] for v in range(3)]
     out = np.empty(len(points))
-    for start in range(0, len(points), _WINDING_BATCH):
-        rel = tris[None] - points[start : start + _WINDING_BATCH, None, None, :]  # (b, F, 3, 3)
-        a, b, c = rel[..., 0, :], rel[..., 1, :], rel[..., 2, :]
-        la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
-        det = np.sum(a * np.cross(b, c), axis=-1)
-        den = la * lb * lc + np.sum(a * b, -1) * lc + np.sum(b * c, -1) * la + np.sum(c * a, -1) * lb
-        out[start : start + _WINDING_BATCH] = np.sum(np.arctan2(det, den), axis=-1) / (2.0 * np.pi)
+    for i, p in enumerate(points):
+        a, b, c = ([plane - p[k] for k, plane in enumerate(vertex)] for vertex in planes)
+        la, lb, lc = (np.sqrt((v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]) for v in (a, b, c))
+        det = (a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2])) + a[2] * (b[0] * c[1] - b[1] * c[0])
+        ab = (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+        bc = (b[0] * c[0] + b[1] * c[1]) + b[2] * c[2]
+        ca = (c[0] * a[0] + c[1] * a[1]) + c[2] * a[2]
+        out[i] = np.sum(np.arctan2(det, la * lb * lc + ab * lc + bc * la + ca * lb)) / (2.0 * np.pi)
     return out
 
 
