@@ -156,9 +156,10 @@ def test_gd_batch_size_is_the_least_padded_size_of_few():
             assert opt.gd_batch_size(n, multiple) <= max(1.0625 * n, n + 2 * multiple)
 
 
-def test_gd_poses_do_not_depend_on_the_rest_of_the_batch():
-    # A tuple's poses are the same bits alone (padded to 64 poses) and among 40 other tuples (to 768),
-    # so neither the padding nor the tuple count of an estimate moves them.
+def test_gd_poses_do_not_depend_on_the_rest_of_the_batch(monkeypatch):
+    # A tuple's poses are the same bits alone (padded to 64 poses), among 40 other tuples (615 poses, padded
+    # to 640) and when those run in chunks (of 128 here), so neither the padding, nor the tuple count of an
+    # estimate, nor the chunking moves them.
     rng = np.random.default_rng(16)
     p = rng.normal(scale=0.05, size=(41, 3, 3))
     s = p[0] + 0.1
@@ -167,6 +168,10 @@ def test_gd_poses_do_not_depend_on_the_rest_of_the_batch():
     alone = opt.fit_gd(p[:1], s, R0[:1], t0, 30, 0.01, 1.0)
     among = opt.fit_gd(p, s, R0, t0, 30, 0.01, 1.0)
     np.testing.assert_array_equal(among.poses[among.tuple_index == 0], alone.poses)
+    monkeypatch.setattr(opt, "GD_CHUNK", 128)
+    chunked = opt.fit_gd(p, s, R0, t0, 30, 0.01, 1.0)
+    np.testing.assert_array_equal(chunked.poses, among.poses)
+    np.testing.assert_array_equal(chunked.tuple_index, among.tuple_index)
 
 
 @pytest.mark.slow

@@ -267,6 +267,9 @@ def use_cpu_devices_for(solver: str, cpu_devices: int) -> None:
         use_cpu_devices(cpu_devices)
 
 
+GD_CHUNK = 8192  # poses per call of the compiled descent, for batches larger than that (fit_gd)
+
+
 def gd_batch_size(n: int, multiple: int) -> int:
     """The batch size ``fit_gd`` pads n poses to: the least size >= n that is a multiple of ``multiple``
     and of the form c * 2^k with c in 16..31 (at most 6.25 % more than n, beyond the multiple), so that
@@ -370,20 +373,30 @@ def fit_gd(
         dtype = jnp.float64 if precision == "float64" else jnp.float32
         devices = jax.devices()
         # Pad the batch (with copies of the first pose, dropped below) and shard it along the batch axis;
-        # XLA then runs each device's share of the (independent) poses on its own core. The padded size
-        # is a multiple of 64 per device, since a share of odd length ran XLA's loop unvectorised (2.9x
-        # slower at 50685 poses), and one of few sizes (``gd_batch_size``), so that the next estimate
-        # reuses the compiled program instead of compiling for its own tuple count (about 1 s).
-        pad = gd_batch_size(xi0.shape[0], 64 * len(devices)) - xi0.shape[0]
+        # XLA then runs each device's share of the (independent) poses on its own core. A share's length is
+        # a multiple of 64, since one of odd length ran XLA's loop unvectorised (2.9x slower at 50685 poses).
+        # A batch of more than GD_CHUNK poses runs in chunks of GD_CHUNK, smaller ones at one of few sizes
+        # (``gd_batch_size``): either way the next estimate reuses the compiled program instead of compiling
+        # one for its own tuple count (about 1 s, a third of a full-load descent).
+        unit = 64 * len(devices)
+        total = xi0.shape[0]
+        chunk = gd_batch_size(total, unit)
+        if chunk > GD_CHUNK:
+            chunk = -(-GD_CHUNK // unit) * unit
+        pad = -total % chunk
         xi = np.concatenate([xi0, np.repeat(xi0[:1], pad, axis=0)]).T
         pts = np.moveaxis(np.concatenate([p_all, np.repeat(p_all[:1], pad, axis=0)]), 0, -1)
-        xi_in, p_in = jnp.asarray(xi, dtype), jnp.asarray(pts, dtype)
-        if len(devices) > 1:
-            mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-            xi_in = jax.device_put(xi_in, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(None, "batch")))
-            p_in = jax.device_put(p_in, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(None, None, "batch")))
-        xi_out = _gd_program(int(n_steps), float(gain_t), float(gain_r))(xi_in, p_in, jnp.asarray(s, dtype))
-        xi_out = np.asarray(xi_out, dtype=np.float64).T[: xi0.shape[0]]
+        program = _gd_program(int(n_steps), float(gain_t), float(gain_r))
+        s_in = jnp.asarray(s, dtype)
+        parts = []
+        for start in range(0, total + pad, chunk):
+            xi_in, p_in = jnp.asarray(xi[:, start : start + chunk], dtype), jnp.asarray(pts[..., start : start + chunk], dtype)
+            if len(devices) > 1:
+                mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+                xi_in = jax.device_put(xi_in, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(None, "batch")))
+                p_in = jax.device_put(p_in, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(None, None, "batch")))
+            parts.append(np.asarray(program(xi_in, p_in, s_in), dtype=np.float64))
+        xi_out = np.concatenate(parts, axis=1).T[:total]
     poses = xi_to_pose(xi_out)
     tuple_index = np.tile(np.arange(n), translations.shape[0])
     return PoseHypotheses(poses, poses_to_losses(poses, p_all, s), tuple_index)
