@@ -6,6 +6,7 @@ import trimesh
 
 from stages import rank
 from tactile6d.core import geometry as g
+from tactile6d.core.errors import ConfigError
 from tactile6d.core.sensor import sensor_poses_touching
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_artifact
@@ -74,8 +75,6 @@ def test_two_workers_rank_as_one_process_and_skip_a_scene_without_hypotheses(art
 
 
 def test_workers_below_one_are_refused(artifacts):
-    from tactile6d.core.errors import ConfigError
-
     with pytest.raises(ConfigError, match="executor.workers"):
         rank.main(["--scene-set", "tiny", "--method", "baseline", f"paths.artifacts_dir={artifacts[0]}",
                    "executor.workers=0"])
