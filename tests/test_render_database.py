@@ -85,6 +85,17 @@ def test_rebuilt_images_equal_direct_renders(built):
     np.testing.assert_array_equal(lazy[M - 1 :], stored[2:])
 
 
+@pytest.mark.parametrize("threads", [2, 3])
+def test_images_decoded_on_threads_equal_those_decoded_on_one(built, monkeypatch, threads):
+    _, _, _, db = built
+    picks = np.arange(4 * M) % M  # enough images for every thread to get some
+    monkeypatch.setattr(database, "_DECODE_THREADS", 1)
+    one = database.database_images(db, picks)
+    monkeypatch.setattr(database, "_DECODE_THREADS", threads)
+    np.testing.assert_array_equal(database.database_images(db, picks), one)
+    np.testing.assert_array_equal(one[M:2 * M], one[:M])  # each image its own seed, wherever it falls
+
+
 def test_masks_and_compression(built):
     _cfg, _, _, db = built
     assert np.mean(db["mask_pixels"] > 0) >= 0.9  # a box: every sensor presses on a face

@@ -70,6 +70,9 @@ CHECKPOINT_FORMAT = "tactile6d-autoencoder-v1"
 _CHECKPOINT_KEYS = ("format", "state_dict", "norm", "cfg", "history")
 # Images preprocessed at once: bounds the float32 copy of full-size images (about 0.9 MB each).
 _PREPROCESS_CHUNK = 256
+# Full-size images turned into float differences at once (about 0.9 MB each): small enough for the buffer to
+# be reused from memory already mapped (see _resized_difference).
+_DIFFERENCE_CHUNK = 8
 
 
 @dataclass(frozen=True)
@@ -284,9 +287,26 @@ def _backgrounds_of(background, sl: slice):
 
 def _resized_difference(images: np.ndarray, background: np.ndarray, height: int, width: int) -> torch.Tensor:
     """uint8 (n, R, C, 3), (R, C, 3) or (n, R, C, 3) -> float32 (n, 3, height, width): area-resized
-    ``image - background``."""
-    diff = torch.from_numpy(np.asarray(images, dtype=np.float32) - np.asarray(background, dtype=np.float32))
-    return F.interpolate(diff.permute(0, 3, 1, 2), size=(height, width), mode="area").contiguous()
+    ``image - background``.
+
+    The full-size float differences go through one small buffer, _DIFFERENCE_CHUNK images at a time: a
+    fresh (n, R, C, 3) float array per call costs more in page faults than the arithmetic itself (1.5 s
+    against 0.15 s for 256 images on a 2-core VM). The values are exact integers and each output pixel
+    sums its own window in a fixed order, so the bits do not depend on the chunking.
+    """
+    images = np.asarray(images)
+    per_image = np.ndim(background) == 4
+    background_f = torch.from_numpy(np.asarray(background, dtype=np.float32))
+    n = images.shape[0]
+    out = torch.empty((n, 3, height, width), dtype=torch.float32)
+    buffer = torch.empty((min(n, _DIFFERENCE_CHUNK), *images.shape[1:]), dtype=torch.float32)
+    for sl in _chunks(n, _DIFFERENCE_CHUNK):
+        diff = buffer[: sl.stop - sl.start]
+        diff.copy_(torch.from_numpy(np.ascontiguousarray(images[sl])))
+        diff.sub_(background_f[sl] if per_image else background_f)
+        # permute gives the channels-last strides the (n, R, C, 3) images have, as before the buffer was used
+        out[sl] = F.interpolate(diff.permute(0, 3, 1, 2), size=(height, width), mode="area")
+    return out
 
 
 def divide_by_peak(diffs: torch.Tensor, floor: float | None) -> torch.Tensor:

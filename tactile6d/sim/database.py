@@ -39,6 +39,7 @@ images in ``body_contact`` (n,) bool: some mesh vertex lies in the body prism be
 from __future__ import annotations
 
 import concurrent.futures
+import os
 import zlib
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -53,6 +54,8 @@ from tactile6d.sim.render import DigitRenderer, MeshArrays, add_noise, inside_bo
 
 _ZLIB_LEVEL = 5  # half the time of level 6 for 6 % more bytes, smaller than level 1 (docs/simulator.md, Databases)
 _RENDER_BATCH = 128  # poses per render_many call: bounds the uint8 images held at once (30 MB)
+# Threads that decode a batch of stored images (database_images): the cores this process may use.
+_DECODE_THREADS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 # --- placing sensors ---------------------------------------------------------------------------------
@@ -275,10 +278,23 @@ def database_images(artifact: Artifact, indices, noise: bool = True) -> np.ndarr
     data, offsets, seeds = artifact["images/data"], artifact["images/offsets"], artifact["noise_seeds"]
     noise_std = float(artifact["noise_std"]) if noise else 0.0
     out = np.empty((len(idx), height, width, 3), dtype=np.uint8)
-    for k, i in enumerate(idx):
+
+    def decode(k: int) -> None:
+        i = idx[k]
         difference = decode_difference(data[offsets[i] : offsets[i + 1]], height, width)
         clean = (background + difference).astype(np.uint8)  # in 0..255 by construction
         out[k] = add_noise(clean, noise_std, int(seeds[i]))
+
+    # zlib, NumPy and OpenCV release the GIL, and OpenCV's noise generator is per thread (add_noise seeds it
+    # in the thread that draws), so threads decode images independently and to the same bits.
+    threads = min(_DECODE_THREADS, len(idx) // 16)
+    if threads > 1:
+        with concurrent.futures.ThreadPoolExecutor(threads) as pool:
+            for _ in pool.map(decode, range(len(idx))):
+                pass
+    else:
+        for k in range(len(idx)):
+            decode(k)
     return out
 
 
