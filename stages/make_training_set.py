@@ -17,7 +17,6 @@ import sys
 import time
 
 import numpy as np
-from tqdm import tqdm
 
 from tactile6d.core.config import section_to_dict
 from tactile6d.core.errors import ConfigError, exit_on_error
@@ -25,12 +24,32 @@ from tactile6d.core.sensor import contact_normals, sensor_poses_to_surface_point
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import write_artifact
 from tactile6d.data.third_party import DataStore
+from tactile6d.runtime.executor import executor_from_config
 from tactile6d.runtime.stage_args import parse_stage_args
 from tactile6d.runtime.stage_clock import timed
 from tactile6d.sim import contact_types, database
 from tactile6d.sim import superquadrics as sq
 from tactile6d.sim import surface_sampling
-from tactile6d.sim.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays
+from tactile6d.sim.render import DigitRenderer, add_noise, load_background_bgr, mesh_arrays, task_renderer
+
+
+def render_shape(settings: dict, background_bgr: np.ndarray, shape: sq.Superquadric, T_object_sensors: np.ndarray,
+                 depths: np.ndarray, mesh_max_edge: float, mesh_max_turn: float,
+                 sharp_radius: float) -> tuple[database.EncodedImages, np.ndarray, np.ndarray, np.ndarray]:
+    """One task: the contacts of one shape, at T_object_sensors (k, 4, 4) pressed ``depths`` (k,) in ->
+    (their encoded images, kinds (k,), contact types (k,), body contacts (k,)).
+
+    The shape is meshed here (deterministic from the shape and the mesh settings of section training_set),
+    so only the shape's parameters travel; the renderer is built once per process (``render.task_renderer``).
+    """
+    renderer = task_renderer(settings, background_bgr)
+    mesh = sq.superquadric_mesh(shape, mesh_max_edge, mesh_max_turn)
+    encoded = database.render_encoded(renderer, mesh_arrays(mesh), T_object_sensors)
+    touched = sensor_poses_to_surface_points(T_object_sensors, depths)
+    kinds = sq.nearest_vertex_kinds(mesh, touched, sharp_radius)
+    types = contact_types.classify_contacts(surface_sampling.sample_surface(mesh), touched,
+                                            contact_normals(T_object_sensors))
+    return encoded, kinds, types, database.body_contacts(mesh.vertices, T_object_sensors)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,18 +70,21 @@ def main(argv: list[str] | None = None) -> int:
     type_codes = np.empty(n, dtype=np.int8)
     body = np.empty(n, dtype=bool)
     background = load_background_bgr(cfg, DataStore(cfg.paths))
-    with DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False) as renderer:
-        images = database.CompactImages(renderer.background)
-        with tqdm(total=n, desc="make_training_set", unit="image") as bar:
-            for a, b in groups:
-                # the mesh the contacts were drawn on (deterministic from the shape and the mesh settings)
-                mesh = sq.superquadric_mesh(contacts[a].shape, float(ts.mesh_max_edge), float(ts.mesh_max_turn))
-                database.render_compact(renderer, mesh_arrays(mesh), poses[a:b], images, progress=bar.update)
-                touched = sensor_poses_to_surface_points(poses[a:b], depths[a:b])
-                kinds[a:b] = sq.nearest_vertex_kinds(mesh, touched, float(ts.sharp_radius))
-                type_codes[a:b] = contact_types.classify_contacts(surface_sampling.sample_surface(mesh), touched,
-                                                               contact_normals(poses[a:b]))
-                body[a:b] = database.body_contacts(mesh.vertices, poses[a:b])
+    # This one only gives the settings the tasks rebuild it from and the background they encode over.
+    renderer = DigitRenderer.from_config(cfg.render, background, noise_std=0.0, strict=False, workers=1)
+    images = database.CompactImages(renderer.background)
+    workers = int(cfg.render.workers)
+    if workers < 1:
+        raise ConfigError(f"render.workers must be >= 1, got {workers}")
+    k = len(groups)
+    with executor_from_config(cfg, workers) as executor:
+        parts = executor.map(
+            render_shape, [renderer.settings] * k, [background] * k, [contacts[a].shape for a, _ in groups],
+            [poses[a:b] for a, b in groups], [depths[a:b] for a, b in groups],
+            [float(ts.mesh_max_edge)] * k, [float(ts.mesh_max_turn)] * k, [float(ts.sharp_radius)] * k,
+            desc="make_training_set")
+    for (a, b), (encoded, kinds[a:b], type_codes[a:b], body[a:b]) in zip(groups, parts):
+        images.extend(encoded)
     shape_index = np.concatenate([np.full(b - a, k) for k, (a, b) in enumerate(groups)])
     no_contact = add_noise(images.background, float(cfg.render.noise_std), int(noise_seeds[-1]))
 

@@ -19,8 +19,6 @@ chunks are appended in order, so the artifact is the same byte for byte wherever
 
 from __future__ import annotations
 
-import hashlib
-import json
 import sys
 import time
 
@@ -33,11 +31,11 @@ from tactile6d.core.sensor import sensor_poses_touching
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact, write_artifact
 from tactile6d.data.third_party import DataStore
-from tactile6d.runtime.executor import executor_from_config, process_cache
+from tactile6d.runtime.executor import executor_from_config
 from tactile6d.runtime.stage_args import parse_stage_args
 from tactile6d.runtime.stage_clock import timed
 from tactile6d.sim import database
-from tactile6d.sim.render import DigitRenderer, MeshArrays, add_noise, load_background_bgr, mesh_arrays
+from tactile6d.sim.render import DigitRenderer, MeshArrays, add_noise, load_background_bgr, mesh_arrays, task_renderer
 
 # Poses per task: ~0.5 s of rendering and encoding each, so 2000 points make 63 tasks, enough to keep
 # a few dozen workers busy and to even out the load; the per-task cost (shipping the mesh and the
@@ -50,13 +48,9 @@ def render_chunk(settings: dict, background_bgr: np.ndarray, mesh: MeshArrays,
     """One task: the encoded images of sensors at T_object_sensors (k, 4, 4) on ``mesh``.
 
     settings: ``DigitRenderer.settings`` of a noise-free renderer; background_bgr (H, W, 3) uint8 as read.
-    The renderer is built once per process and kept (``process_cache``) while the settings and the
-    background stay the same.
+    The renderer is built once per process (``render.task_renderer``).
     """
-    key = ("render_database renderer", json.dumps(settings, sort_keys=True),
-           hashlib.sha1(np.ascontiguousarray(background_bgr).tobytes()).hexdigest())
-    renderer = process_cache(key, lambda: DigitRenderer(background_bgr, **settings, workers=1),
-                             slot="render_database renderer")
+    renderer = task_renderer(settings, background_bgr)
     return database.render_encoded(renderer, mesh, T_object_sensors)
 
 

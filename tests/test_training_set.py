@@ -72,6 +72,18 @@ def test_rebuilt_image_equals_a_direct_render(built):
     np.testing.assert_array_equal(database.database_masks(ts, [i])[0], direct.mask)
 
 
+def test_two_worker_processes_write_the_same_set(built, tmp_path, data_dir):
+    """The shapes rendered on two worker processes come back in order: every dataset equals the one-process set."""
+    cfg, ts = built
+    overrides = [f"paths.artifacts_dir={tmp_path}", f"paths.data_dir={data_dir}", f"training_set.n_images={N}",
+                 f"training_set.n_shapes={SHAPES}", "render.workers=2"]
+    assert make_training_set.main(overrides) == 0
+    two = read_artifact(layout.training_set_file(tmp_path), "training_set")
+    for key in ("images/data", "images/offsets", "masks/data", "mask_pixels", "kinds", "contact_types",
+                "body_contact", "noise_seeds", "T_object_sensor", "shape_index"):
+        np.testing.assert_array_equal(two[key], ts[key], err_msg=key)
+
+
 def test_bad_count_and_corrupt_artifact(tmp_path):
     with pytest.raises(ConfigError):
         make_training_set.main([f"paths.artifacts_dir={tmp_path}", "training_set.n_images=0"])

@@ -705,6 +705,20 @@ class DigitRenderer:
             pool.shutdown(wait=False, cancel_futures=True)
 
 
+def task_renderer(settings: dict, background_bgr: np.ndarray) -> DigitRenderer:
+    """The renderer of an executor task: one process (it is already a worker), built from ``settings``
+    (a renderer's ``settings``) and the background (H, W, 3) uint8 BGR as read, once per process and kept
+    (``runtime.executor.process_cache``) while the two stay the same."""
+    import hashlib
+    import json
+
+    from tactile6d.runtime.executor import process_cache
+
+    key = ("task renderer", json.dumps(settings, sort_keys=True),
+           hashlib.sha1(np.ascontiguousarray(background_bgr).tobytes()).hexdigest())
+    return process_cache(key, lambda: DigitRenderer(background_bgr, **settings, workers=1), slot="task renderer")
+
+
 def add_noise(image: np.ndarray, noise_std: float, seed) -> np.ndarray:
     """(H, W, 3) uint8 image + N(0, noise_std) per pixel and channel, clipped and truncated (TACTO) -> uint8.
 
