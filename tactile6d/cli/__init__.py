@@ -26,6 +26,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("bench", "track"): ("bench_track", "frames per second of the tracker on the generated sequences (L = 3)"),
     ("estimate",): ("estimate", "estimate an object's pose from scene folders in the paper's triplet layout"),
     ("track",): ("track", "follow an object's pose over a stream of frames (numbered scene folders or a ROS 2 bag)"),
+    ("inspect",): ("inspect", "what the estimator reads from one scene's images (light, contact patch, problems), with a figure"),
     ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),
     ("add-object",): ("add_object", "a mesh file of yours as a library object: check it, configure it, make its artifacts"),
 }

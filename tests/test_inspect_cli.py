@@ -1,0 +1,147 @@
+"""``tactile6d inspect`` on one of the paper's triplets and on copies of it made wrong as a real set-up gets
+wrong: it must read what the estimator reads, and list every problem for which the estimator refuses a scene."""
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from tactile6d import cli
+from tactile6d.core import geometry as g
+from tactile6d.core.config import compose_config
+from tactile6d.core.errors import InputError
+from tactile6d.core.settings import SelectSettings
+from tactile6d.data import layout
+from tactile6d.data.hdf5 import read_scene_dir, read_tactile_image, write_tactile_image
+from tactile6d.perception import contact_patch, encode
+from tactile6d.perception.inputs import check_images_against_backgrounds
+
+TRIPLET = "caddeo2023/triplets/004_sugar_box/triplet_1"
+
+
+@pytest.fixture(scope="module")
+def artifacts(tmp_path_factory):
+    """An artifacts directory holding only a small patch calibration (20 presses), as stage calibrate_patch writes it."""
+    root = tmp_path_factory.mktemp("artifacts")
+    path = layout.patch_model_file(root)
+    path.parent.mkdir(parents=True)
+    contact_patch.save_model(contact_patch.calibrate(20, seed=0), path)
+    return root
+
+
+@pytest.fixture()
+def scene(data_dir, tmp_path):
+    """A copy of one of the paper's triplet folders, for a test to spoil."""
+    return shutil.copytree(data_dir / TRIPLET, tmp_path / "triplet")
+
+
+def run(capsys, *argv):
+    code = cli.main(["inspect", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def run_json(capsys, scene, artifacts, *more):
+    code, out, err = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts), "--json", *more)
+    assert err == "" or "error" not in err, err
+    return code, json.loads(out)
+
+
+def test_it_reads_the_contacts_the_estimator_reads_and_draws_them(capsys, scene, artifacts, data_dir, tmp_path):
+    figure = tmp_path / "figures" / "reading.png"
+    code, reading = run_json(capsys, scene, artifacts, "--out", str(figure))
+    assert code == 0 and not reading["refused"] and reading["problems"] == []
+    assert reading["backgrounds"].startswith("render.background")
+    assert [s["contact"] for s in reading["sensors"]] == [True, True, True]
+
+    # The estimator's own reading of the same scene: light alignment, then each image's patch.
+    cfg = compose_config([])
+    T, images = read_scene_dir(scene)
+    background = encode.load_background(cfg, data_dir)
+    aligned, _ = encode.align_light(SelectSettings.from_cfg(cfg.select), images, np.stack([background] * 3))
+    model = contact_patch.load_model(layout.patch_model_file(artifacts))
+    contacts = encode.read_contacts(SelectSettings.from_cfg(cfg.select), T, aligned, background, model)
+    for i, s in enumerate(reading["sensors"]):
+        point_world = g.transform_points(T[i], np.array(s["point_mm"])[None] / 1000)[0]
+        assert np.allclose(point_world, contacts.points[i], atol=1e-5)
+        assert 0.0 < s["depth_mm"] < 3.0 and 0.0 < s["area_percent"] <= 100.0 and 0 <= s["tilt_deg"] <= 90
+    drawn = cv2.imread(str(figure))
+    assert drawn is not None and drawn.shape[0] > drawn.shape[1] > 400  # three rows of four panels
+
+
+def test_the_text_says_where_each_sensor_touches(capsys, scene, artifacts):
+    code, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts))
+    assert code == 0
+    lines = out.splitlines()
+    assert "render.background" in lines[0]
+    for i in range(3):
+        line = next(x for x in lines if x.startswith(f"sensor {i}: "))
+        assert "contact at pixel row" in line and "mm deep" in line
+    assert "would refuse" not in out
+
+
+def test_every_image_the_estimator_refuses_is_named_and_the_others_still_read(capsys, scene, artifacts, data_dir):
+    bgr = read_tactile_image(scene / "Image_heatmap_1.png")[..., ::-1]
+    write_tactile_image(scene / "Image_heatmap_1.png", np.ascontiguousarray(bgr))
+    grey = read_tactile_image(scene / "Image_heatmap_2.png").mean(axis=-1).round().astype(np.uint8)
+    write_tactile_image(scene / "Image_heatmap_2.png", np.repeat(grey[..., None], 3, axis=-1))
+    code, reading = run_json(capsys, scene, artifacts)
+    assert code == 1 and reading["refused"]
+    problems = [s["problems"] for s in reading["sensors"]]
+    assert problems[0] == []
+    assert len(problems[1]) == 1 and "image 1 looks like BGR" in problems[1][0]
+    assert len(problems[2]) == 1 and "image 2 is grey" in problems[2][0]
+    assert reading["sensors"][0]["contact"] is True
+    # The estimator's check stops at the first of them.
+    _, images = read_scene_dir(scene)
+    background = encode.load_background(compose_config([]), data_dir)
+    with pytest.raises(InputError, match="image 1 looks like BGR"):
+        check_images_against_backgrounds(images, np.stack([background] * 3))
+
+
+def test_overlapping_sensors_are_a_problem_of_the_scene(capsys, scene, artifacts):
+    lines = (scene / "poses_sensors.txt").read_text().splitlines()
+    (scene / "poses_sensors.txt").write_text("\n".join([lines[0], lines[0], lines[2]]) + "\n")
+    code, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts))
+    assert code == 1
+    assert "problem: sensors 0 and 1 overlap" in out and "would refuse this scene" in out
+
+
+def test_an_untouched_sensor_reads_no_contact(capsys, scene, artifacts, data_dir):
+    shutil.copy(data_dir / "digit" / "caddeo2023" / "background.png", scene / "Image_heatmap_0.png")
+    code, reading = run_json(capsys, scene, artifacts)
+    assert code == 0
+    assert reading["sensors"][0]["contact"] is False and "point_mm" not in reading["sensors"][0]
+    assert reading["sensors"][1]["contact"] is True
+
+
+def test_drifted_light_is_aligned_before_the_contact_is_read(capsys, scene, artifacts):
+    _, clean = run_json(capsys, scene, artifacts)
+    image = read_tactile_image(scene / "Image_heatmap_0.png").astype(np.float64)
+    write_tactile_image(scene / "Image_heatmap_0.png", np.clip(image * [0.9, 1.0, 1.1], 0, 255).round().astype(np.uint8))
+    _, drifted = run_json(capsys, scene, artifacts)
+    light, before = drifted["sensors"][0]["light"], clean["sensors"][0]["light"]
+    # The fit's gain is the drift's, from the no-contact image's light: red 0.9 times and blue 1.1 times the clean image's.
+    ratio = np.divide(light["gain"], before["gain"])
+    assert light["applied"] and abs(ratio[0] - 0.9) < 0.05 and abs(ratio[1] - 1.0) < 0.05 and abs(ratio[2] - 1.1) < 0.05
+    shift = np.linalg.norm(np.subtract(drifted["sensors"][0]["point_mm"], clean["sensors"][0]["point_mm"]))
+    assert shift < 0.5  # mm
+
+
+def test_own_backgrounds_are_taken_as_estimate_takes_them(capsys, scene, artifacts, data_dir):
+    background = data_dir / "digit" / "caddeo2023" / "background.png"
+    for i in range(3):
+        shutil.copy(background, scene / f"background_{i}.png")
+    code, reading = run_json(capsys, scene, artifacts)
+    assert code == 0 and reading["backgrounds"] == "the folder's background_<i>.png"
+    code, reading = run_json(capsys, scene, artifacts, "--background", str(background))
+    assert code == 0 and reading["backgrounds"] == "--background"
+    code, _, err = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts), "--background", "a.png", "b.png")
+    assert code == 2 and "background a.png not found" in err
+
+
+def test_missing_patch_calibration_names_the_stage_that_makes_it(capsys, scene, tmp_path):
+    code, _, err = run(capsys, "--scene", str(scene), "--artifacts", str(tmp_path / "empty"))
+    assert code == 2 and "calibrate_patch" in err
