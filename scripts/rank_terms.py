@@ -10,6 +10,11 @@ render-and-compare cost. For each scene whose winner is more than ``--wrong-cm``
 prints the candidate nearest the truth, its place in the ranking and by how much each term favoured the
 winner over it; then, per set, the mean of those differences. A diagnostic: it reads the terms by wrapping
 the rank module's functions for the duration of the run, and changes no estimate.
+
+``--against-truth``: for every scene, the winner and the true pose are each re-scored alone as the ranking
+re-scores a candidate (refined, then scored term by term), and the terms of the two compared: per set, over
+the scenes where the refined truth scores worse, how much each term favours the winner (mean, median, and in
+how many scenes). Where the winner is near the truth anyway, this says which term keeps the best pose off it.
 """
 
 from __future__ import annotations
@@ -81,11 +86,31 @@ def scene_terms(last: dict, rank_cfg) -> dict[str, np.ndarray]:
     }
 
 
+def rescored_terms(estimator: Estimator, T_world_sensors: np.ndarray, pose: np.ndarray, contacts, rank_cfg
+                   ) -> tuple[dict[str, float], np.ndarray]:
+    """One pose (4, 4) re-scored alone as the ranking re-scores a candidate -> (its weighted terms (m), the
+    refined pose (4, 4))."""
+    with Recorder() as recorder:
+        ranked = estimator.rank(T_world_sensors, np.asarray(pose)[None], np.zeros(1), contacts)
+    return {t: float(v[0]) for t, v in scene_terms(recorder.last, rank_cfg).items()}, ranked.poses[0]
+
+
+def favoured(differences: list[dict[str, float]]) -> str:
+    """Per term, over winner-minus-truth differences (mm): mean, median and how many favour the winner (< 0)."""
+    parts = []
+    for t in TERMS:
+        values = np.array([d[t] for d in differences])
+        parts.append(f"{t} {values.mean():+.2f} (median {np.median(values):+.2f}, {int((values < 0).sum())} scenes)")
+    return ", ".join(parts)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--artifacts", default="artifacts")
     parser.add_argument("--scenes", nargs="+", required=True, help="scene sets (artifacts/scenes/<set>.h5)")
     parser.add_argument("--wrong-cm", type=float, default=1.0, help="a winner this far from the truth is wrong")
+    parser.add_argument("--against-truth", action="store_true",
+                        help="also re-score the winner and the true pose alone and compare their terms, every scene")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
     args = parser.parse_args(argv)
     cfg = compose_config(args.overrides)
@@ -93,14 +118,24 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("ranking re-scores no candidate with these settings (rank.refine off, no agreement)")
     for scene_set in args.scenes:
         scenes = read_artifact(layout.scenes_file(args.artifacts, scene_set), "scenes")
-        estimators, wrong = {}, []
+        estimators, wrong, truth_worse = {}, [], []
         for s in range(len(scenes["names"])):
             obj = str(scenes["objects"][s])
             if obj not in estimators:
                 estimators[obj] = Estimator.from_artifacts(obj, args.artifacts, cfg)
+            T = scenes["T_world_sensors"][s]
             with Recorder() as recorder:
-                estimators[obj].estimate(scenes["T_world_sensors"][s], scenes["images"][s], scene_backgrounds(scenes, s))
+                estimate = estimators[obj].estimate(T, scenes["images"][s], scene_backgrounds(scenes, s))
             terms = scene_terms(recorder.last, cfg.rank)
+            if args.against_truth:
+                truth = np.asarray(scenes["T_world_object"][s])
+                mine, _ = rescored_terms(estimators[obj], T, estimate.best, estimate.contacts, cfg.rank)
+                theirs, refined = rescored_terms(estimators[obj], T, truth, estimate.contacts, cfg.rank)
+                if sum(mine.values()) < sum(theirs.values()):
+                    truth_worse.append({t: 1000 * (mine[t] - theirs[t]) for t in TERMS})
+                print(f"{scene_set} {s:3d} {obj:22s} winner {100 * np.linalg.norm(estimate.best[:3, 3] - truth[:3, 3]):.2f} "
+                      f"cm, refined truth {100 * np.linalg.norm(refined[:3, 3] - truth[:3, 3]):.2f} cm; winner minus "
+                      "truth (mm): " + ", ".join(f"{t} {1000 * (mine[t] - theirs[t]):+.2f}" for t in TERMS))
             score = sum(terms.values())
             position = np.linalg.norm(recorder.last["candidates"][:, :3, 3] - scenes["T_world_object"][s][:3, 3], axis=1)
             order = np.lexsort((np.arange(len(score)), score))
@@ -115,6 +150,10 @@ def main(argv: list[str] | None = None) -> int:
         summary = ", ".join(f"{t} {np.mean([d[t] for d in wrong]):+.2f}" for t in TERMS) if wrong else "-"
         print(f"{scene_set}: {len(wrong)} of {len(scenes['names'])} winners over {args.wrong_cm:g} cm; mean winner "
               f"minus nearest (mm): {summary}")
+        if args.against_truth:
+            print(f"{scene_set}: the refined truth scores worse than the winner in {len(truth_worse)} of "
+                  f"{len(scenes['names'])}; there, winner minus truth (mm): "
+                  + (favoured(truth_worse) if truth_worse else "-"))
     return 0
 
 

@@ -33,3 +33,14 @@ def test_the_recorder_puts_the_rank_functions_back():
     after = (rank_module.penetration_cost, rank_module.agreement_cost, rank_module.distinct_in_order,
              rank_module.refinement.sensor_corrections_cost, rank_module.refinement.surface_losses)
     assert after == before
+
+
+def test_favoured_summarises_the_differences_per_term():
+    diffs = [{"surface": -1.0, "penetration": 0.0, "correction": 0.5, "agreement": -2.0},
+             {"surface": -3.0, "penetration": 0.0, "correction": -0.5, "agreement": 1.0},
+             {"surface": 1.0, "penetration": 0.0, "correction": -0.5, "agreement": -5.0}]
+    text = rank_terms.favoured(diffs)
+    assert "surface -1.00 (median -1.00, 2 scenes)" in text
+    assert "penetration +0.00 (median +0.00, 0 scenes)" in text
+    assert "correction -0.17 (median -0.50, 2 scenes)" in text
+    assert "agreement -2.00 (median -2.00, 2 scenes)" in text
