@@ -17,7 +17,7 @@ image as aligned (``perception.contact_patch.image_to_patch``), which needs only
   blue look swapped against its no-contact image, an image too saturated to read, and (for the scene)
   sensors whose bodies overlap. ``estimate`` stops at the first; this lists them all.
 
-``--out PNG`` writes a figure, one row per sensor: the image as given, its no-contact image, the difference
+``--out FILE`` (PNG or JPG) writes a figure, one row per sensor: the image as given, its no-contact image, the difference
 the reading sees (after the light alignment), and the press depth read from it with the patch's outline and
 contact point. ``--json`` prints one JSON object instead of the text.
 
@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile6d.cli.estimate import scene_backgrounds, split_overrides
 from tactile6d.core import sensor
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import DataError, InputError
@@ -126,9 +127,10 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
 
 
 def contact_summary(patch: ContactPatch | None) -> dict:
-    """A patch's figures: ``contact``; with one, ``point_mm`` (sensor frame), ``pixel`` (row, column),
-    ``depth_mm`` (deepest press), ``area_percent`` (of the image's pixels), ``tilt_deg`` (the surface
-    normal's angle from the camera's axis, sensor x), ``from_centre_mm`` (y, z from the gel's centre); ``noise`` (grey levels) when the image was read."""
+    """A patch's figures: ``contact``; with one, ``point_mm`` (sensor frame), ``from_centre_mm`` (its y, z from
+    the gel's centre), ``pixel`` (row, column), ``depth_mm`` (deepest press), ``area_percent`` (of the image's
+    pixels), ``tilt_deg`` (the surface normal's angle from the camera's axis, sensor x); ``noise`` (grey levels)
+    when the image was read."""
     if patch is None:
         return {"contact": None}
     out = {"contact": bool(patch.contact), "noise": round(float(patch.noise), 2)}
@@ -210,8 +212,6 @@ def reading_figure(reading: SceneReading, title: str):
 def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray | None, cfg) -> tuple[np.ndarray, str]:
     """The no-contact images ``tactile6d estimate`` would read the scene against, and which they are: those
     given with ``--background``, else the folder's ``background_<i>.png``, else ``render.background``."""
-    from tactile6d.cli.estimate import scene_backgrounds
-
     if given is not None:
         return given, "--background"
     own, _ = scene_backgrounds(scene, n_sensors, False)
@@ -228,12 +228,10 @@ def main(argv: list[str]) -> int:
                              "order (default: the folder's background_<i>.png, else render.background)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory holding the patch calibration "
                                                           "(default: paths.artifacts_dir)")
-    parser.add_argument("--out", type=Path, default=None, metavar="PNG", help="write the figure there")
+    parser.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the figure there (PNG or JPG)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the text")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
-    from tactile6d.cli.estimate import split_overrides
-
     args.background, overrides = split_overrides(args.background, list(args.overrides))
     cfg = compose_config(overrides)
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
