@@ -53,6 +53,53 @@ def test_depth_equals_the_renderers_on_the_same_grid(box, step):
         assert depth[5, 0].max() > renderer.max_press  # the top sensor pressed into the body
 
 
+def test_first_hits_facing_away_are_left_to_the_renderer(monkeypatch):
+    """A 1 mm plate without its top face, pressed 1.8 mm from above and from below: the top sensor's rays
+    enter through the hole and first meet the bottom's inside, a triangle facing away from the camera,
+    which the renderer leaves out. Those pairs go to the renderer; the rest are cast in one batch; all
+    equal the renderer's depths."""
+    full = trimesh.creation.box(extents=(0.12, 0.08, 0.001))
+    open_plate = trimesh.Trimesh(full.vertices, full.faces[full.face_normals[:, 2] < 0.9], process=False)
+    sensors = T_GT @ sensor_poses_touching(np.array([[0.0, 0.0, 0.0005], [0.02, 0.0, -0.0005]]),
+                                           np.array([[0, 0, 1.0], [0, 0, -1.0]]), [0.0, 0.3], 0.0018)
+    poses = np.stack([T_GT, perturbed(T_GT, [0.02, 0.0, -0.01], [0.001, 0.0, 0.0002])])
+    renderer = gel_press.depth_renderer(8)
+    calls = []
+    original = renderer.contact_depth
+    monkeypatch.setattr(renderer, "contact_depth", lambda *a: calls.append(1) or original(*a))
+    depth = gel_press.poses_to_gel_depths(open_plate, poses, sensors, step=8)
+    assert len(calls) == 2  # the top sensor of each pose, and only those
+    arrays = mesh_arrays(open_plate)
+    for p, T in enumerate(poses):
+        for i, T_sensor in enumerate(sensors):
+            np.testing.assert_array_equal(depth[p, i], original(arrays, invert_pose(T_sensor) @ T))
+    assert (depth[:, 1] > 0).any(axis=(1, 2)).all()  # the bottom face, pressed from below
+
+
+def test_batches_of_any_size_give_the_same_depths(box, monkeypatch):
+    sensors = box_sensors(T_GT)
+    rng = np.random.default_rng(3)
+    poses = np.stack([perturbed(T_GT, rng.normal(0, 0.03, 3), rng.normal(0, 0.002, 3)) for _ in range(5)])
+    whole = gel_press.poses_to_gel_depths(box, poses, sensors, step=8)
+    monkeypatch.setattr(gel_press, "_RAYS_PER_CAST", 2 * 40 * 30)  # two pairs per Embree call
+    np.testing.assert_array_equal(gel_press.poses_to_gel_depths(box, poses, sensors, step=8), whole)
+    one_by_one = [gel_press.poses_to_gel_depths(box, T, sensors, step=8)[0] for T in poses]
+    np.testing.assert_array_equal(np.stack(one_by_one), whole)
+
+
+def test_a_mesh_scene_is_built_once_and_dropped_with_the_mesh():
+    mesh = trimesh.creation.box(extents=(0.12, 0.08, 0.05))
+    scene = gel_press._object_scene(mesh)
+    assert gel_press._object_scene(mesh) is scene
+    other = trimesh.creation.box(extents=(0.12, 0.08, 0.05))
+    assert gel_press._object_scene(other) is not scene
+    key = id(mesh)
+    del mesh, scene
+    import gc
+    gc.collect()
+    assert key not in gel_press._SCENES
+
+
 def test_depth_on_a_flat_face_is_the_gel_minus_the_plane():
     """Naive reference: a sensor square on a big flat face, the face plane at x = apex - press."""
     mesh = trimesh.creation.box(extents=(0.2, 0.2, 0.05))

@@ -6,6 +6,16 @@ the DIGIT camera, the object's camera-facing triangles in front of the gel, the 
 renderer's own (``contact_depth``, the depth of ``contact`` without its shading), with
 ``render_step=step``, ``strict=False`` and no force shift, as the scenes use.
 
+Many (pose, sensor) pairs are cast at once: the object's triangles are put in one Embree scene in the
+object's frame, built once per mesh, and every pair's rays are brought into that frame (the renderer
+instead poses the mesh and builds a scene per pair, which costs ten times the rays' traversal). The hit
+triangle's distance is then recomputed as the renderer recomputes it, from the corners posed in the
+sensor frame, so that a pair's depths are the renderer's bit for bit wherever both pick the same
+triangle (they may pick the other of two triangles that share an edge a ray meets: then the depths
+differ by the triangles' bend there, far below a micrometre on these meshes). The renderer leaves out
+the triangles that face away from the camera; the whole mesh's first hit on such a triangle (a ray
+entering through a hole, or a camera inside the object) sends that pair to the renderer itself.
+
 The image-consistent contact metric compares the contact masks (``depth > 0``) predicted at an estimated
 pose and at the true pose, sensor by sensor, by their intersection over union.
 """
@@ -13,13 +23,20 @@ pose and at the true pose, sensor by sensor, by their intersection over union.
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 import trimesh
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
 
 from tactile6d.core import sensor
 from tactile6d.core.geometry import invert_pose
-from tactile6d.sim.render import DigitRenderer, MeshArrays, mesh_arrays
+from tactile6d.sim.render import (CAMERA_POSITION, DigitRenderer, MeshArrays, gel_surface, mesh_arrays, pixel_rays,
+                                  ray_triangle_hits)
+
+# Rays per Embree call: bounds the batch's buffers (about 40 bytes a ray) whatever the number of pairs.
+_RAYS_PER_CAST = 1 << 18
 
 
 @functools.lru_cache(maxsize=8)
@@ -35,6 +52,43 @@ def depth_renderer(step: int) -> DigitRenderer:
     return DigitRenderer.from_default_config(blank, render_step=int(step), strict=False, force=0.0, workers=1)
 
 
+@functools.lru_cache(maxsize=8)
+def _ray_grid(step: int) -> tuple[np.ndarray, np.ndarray]:
+    """The renderer's ray grid of ``step``: rays (n, 3) float32 (x = 1) and gel distances (n,) float32,
+    flattened row by row, computed as ``DigitRenderer`` computes its own."""
+    rays = pixel_rays(sensor.IMAGE_WIDTH, sensor.IMAGE_HEIGHT, step)
+    gel_points, _ = gel_surface(rays)
+    gel_t = (gel_points[..., 0] - CAMERA_POSITION[0]).ravel().astype(np.float32)
+    return np.ascontiguousarray(rays.reshape(-1, 3), dtype=np.float32), gel_t
+
+
+class _ObjectScene:
+    """A mesh's triangles in one Embree scene, in the object's own frame (float32), and the mesh's arrays."""
+
+    def __init__(self, arrays: MeshArrays):
+        self.arrays = arrays
+        self.scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(self.scene, arrays.vertex_rows.T[arrays.faces].astype(np.float32))
+
+    def first_hits(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
+        """(m, 3) float32 origins and directions, (m,) float32 far limits -> (m,) face index or -1."""
+        return self.scene.run(origins, directions, dists=t_max, output=1)["primID"]
+
+
+_SCENES: dict[int, tuple[weakref.ref, _ObjectScene]] = {}
+
+
+def _object_scene(mesh: trimesh.Trimesh | MeshArrays) -> _ObjectScene:
+    """The scene of ``mesh``, built on its first use and kept while the mesh object lives."""
+    key = id(mesh)
+    entry = _SCENES.get(key)
+    if entry is not None and entry[0]() is mesh:
+        return entry[1]
+    scene = _ObjectScene(mesh_arrays(mesh))
+    _SCENES[key] = (weakref.ref(mesh, lambda _, key=key: _SCENES.pop(key, None)), scene)
+    return scene
+
+
 def poses_to_gel_depths(
     mesh: trimesh.Trimesh | MeshArrays,
     T_world_object: np.ndarray,
@@ -46,18 +100,61 @@ def poses_to_gel_depths(
     mesh: the object (its own frame); T_world_object (P, 4, 4) or (4, 4); T_world_sensors (L, 4, 4);
     step: ray-grid step in pixels (divides 240 and 320). -> depth (P, L, h, w) float32 m, 0 where the
     object does not press into the gel; (h, w) = (320, 240) / step, row 0 at the top of the image.
+    The renderer's ``contact_depth`` of each pair (module docstring: how, and where they may differ).
     """
-    arrays = mesh_arrays(mesh)
+    scene = _object_scene(mesh)
     T_objects = np.asarray(T_world_object, dtype=np.float64).reshape(-1, 4, 4)
     T_sensors = np.asarray(T_world_sensors, dtype=np.float64).reshape(-1, 4, 4)
     renderer = depth_renderer(int(step))
-    out = np.zeros((len(T_objects), len(T_sensors), *renderer.grid_shape), dtype=np.float32)
+    rays, gel_t = _ray_grid(int(step))
     T_sensors_world = [invert_pose(T) for T in T_sensors]
-    for p, T_wo in enumerate(T_objects):
-        for i, T_sw in enumerate(T_sensors_world):
-            # Composed one pair at a time, as DigitRenderer.render does, so the result is bit-identical.
-            out[p, i] = renderer.contact_depth(arrays, T_sw @ T_wo)
-    return out
+    # Composed one pair at a time, as DigitRenderer.render does, so that the posed corners are its bits.
+    pairs = np.stack([T_sw @ T_wo for T_wo in T_objects for T_sw in T_sensors_world])
+    depth = np.zeros((len(pairs), len(rays)), dtype=np.float32)
+    per_cast = max(1, _RAYS_PER_CAST // len(rays))
+    for start in range(0, len(pairs), per_cast):
+        chunk = np.arange(start, min(start + per_cast, len(pairs)))
+        for k, pressed in zip(chunk, _cast_pairs(scene, pairs[chunk], rays, gel_t)):
+            depth[k] = renderer.contact_depth(scene.arrays, pairs[k]).ravel() if pressed is None else pressed
+    return depth.reshape(len(T_objects), len(T_sensors), *renderer.grid_shape)
+
+
+def _cast_pairs(scene: _ObjectScene, T_sensor_objects: np.ndarray, rays: np.ndarray, gel_t: np.ndarray) -> list:
+    """The press depths (n,) float32 of K pairs T_sensor_object (K, 4, 4) on the ray grid (rays (n, 3),
+    gel_t (n,)), or None for a pair with a first hit on a triangle that faces away from the camera (left
+    to the renderer)."""
+    K, n = len(T_sensor_objects), len(rays)
+    T_object_sensors = np.stack([invert_pose(T) for T in T_sensor_objects])
+    R = T_object_sensors[:, :3, :3]
+    origins = R @ CAMERA_POSITION + T_object_sensors[:, :3, 3]  # (K, 3): the camera in the object frame
+    directions = (rays.astype(np.float64) @ R.transpose(0, 2, 1)).astype(np.float32).reshape(-1, 3)
+    t_max = np.nextafter(gel_t, np.float32(np.inf))  # just past the gel, as the renderer stops its rays
+    face = scene.first_hits(np.repeat(origins.astype(np.float32), n, axis=0), directions, np.tile(t_max, K))
+    hit = np.flatnonzero(face >= 0)
+    pair, ray = hit // n, hit % n
+    # The hit triangles' corners posed in the sensor frame with the renderer's arithmetic
+    # (``_transform_rows``: each coordinate ((x R0 + R1 y) + R2 z) + t), one pair's pose per corner.
+    corner_ids = scene.arrays.faces[face[hit]].ravel()  # (3m,)
+    owner = np.repeat(pair, 3)
+    x, y, z = scene.arrays.vertex_rows[:, corner_ids]
+    coefficients = np.ascontiguousarray(T_sensor_objects[:, :3, :].transpose(1, 2, 0))  # (3, 4, K)
+    posed = np.empty((3, len(corner_ids)))
+    for i in range(3):
+        c = coefficients[i]
+        np.multiply(x, c[0][owner], out=posed[i])
+        posed[i] += c[1][owner] * y
+        posed[i] += c[2][owner] * z
+        posed[i] += c[3][owner]
+    posed = posed.T.reshape(-1, 3, 3)
+    normal = np.cross(posed[:, 1] - posed[:, 0], posed[:, 2] - posed[:, 0])
+    facing = np.sum(normal * (posed[:, 0] - CAMERA_POSITION), axis=1) < 0.0
+    corners = (posed - CAMERA_POSITION).astype(np.float32).astype(np.float64)
+    t = ray_triangle_hits(corners, rays[ray].astype(np.float64))[0]
+    front = t < gel_t[ray]
+    depth = np.zeros((K, n), dtype=np.float32)
+    depth[pair[front], ray[front]] = gel_t[ray[front]] - t[front]
+    away = set(pair[~facing].tolist())
+    return [None if k in away else depth[k] for k in range(K)]
 
 
 def mask_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
