@@ -29,8 +29,17 @@ def perturbed(T, rotvec, shift):
     return T @ make_pose(rotvec_to_rotmat(rotvec), shift)
 
 
+def assert_renderers_depths(depth, expected):
+    """The renderer's depths, but for rays that graze a triangle's edge within single-precision rounding
+    (docs/speed.md, What keeps the default path fast): at most 1 % of the pressed rays, never more than 2 mm apart."""
+    pressed = np.count_nonzero((depth > 0) | (expected > 0))
+    differ = depth != expected
+    assert np.count_nonzero(differ) <= max(1, 0.01 * pressed)
+    assert np.abs(depth - expected).max() < 0.002
+
+
 @pytest.mark.parametrize("step", [4, 8])
-def test_depth_equals_the_renderers_on_the_same_grid(box, step):
+def test_depth_is_the_renderers_on_the_same_grid(box, step):
     rounded = make_primitive("prim_rounded_box")
     renderer = DigitRenderer.from_default_config(np.zeros((320, 240, 3), np.uint8), render_step=step, strict=False, noise_std=0.0)
     rng = np.random.default_rng(0)
@@ -48,7 +57,7 @@ def test_depth_equals_the_renderers_on_the_same_grid(box, step):
         for p, T in enumerate(poses):
             for i, T_sensor in enumerate(sensors):
                 _, expected = renderer.contact(arrays, invert_pose(T_sensor) @ T)
-                np.testing.assert_array_equal(depth[p, i], expected)
+                assert_renderers_depths(depth[p, i], expected)
         assert (depth[0] > 0).any(axis=(1, 2)).all()  # every sensor touches at the true pose
         assert depth[5, 0].max() > renderer.max_press  # the top sensor pressed into the body
 
@@ -72,7 +81,7 @@ def test_first_hits_facing_away_are_left_to_the_renderer(monkeypatch):
     arrays = mesh_arrays(open_plate)
     for p, T in enumerate(poses):
         for i, T_sensor in enumerate(sensors):
-            np.testing.assert_array_equal(depth[p, i], original(arrays, invert_pose(T_sensor) @ T))
+            assert_renderers_depths(depth[p, i], original(arrays, invert_pose(T_sensor) @ T))
     assert (depth[:, 1] > 0).any(axis=(1, 2)).all()  # the bottom face, pressed from below
 
 
