@@ -1,3 +1,5 @@
+import gc
+
 import numpy as np
 import pytest
 import trimesh
@@ -31,7 +33,7 @@ def perturbed(T, rotvec, shift):
 
 def assert_renderers_depths(depth, expected):
     """The renderer's depths, but for rays that graze a triangle's edge within single-precision rounding
-    (docs/speed.md, What keeps the default path fast): at most 1 % of the pressed rays, never more than 2 mm apart."""
+    (docs/speed.md, What keeps the default path fast): at most 1 % of the pressed rays, less than 2 mm apart."""
     pressed = np.count_nonzero((depth > 0) | (expected > 0))
     differ = depth != expected
     assert np.count_nonzero(differ) <= max(1, 0.01 * pressed)
@@ -104,7 +106,6 @@ def test_a_mesh_scene_is_built_once_and_dropped_with_the_mesh():
     assert gel_press._object_scene(other) is not scene
     key = id(mesh)
     del mesh, scene
-    import gc
     gc.collect()
     assert key not in gel_press._SCENES
 
