@@ -326,7 +326,10 @@ def test_fit_model_needs_a_contact():
 #
 # image_to_patch runs the per-pixel steps on a box around the mask and takes shortcuts that must not move a
 # bit (see contact_patch, "the region the per-pixel work is done on"). The reference below is the plain
-# whole-image computation those steps replaced, kept verbatim; every output must be the same bits.
+# whole-image computation those steps replaced, kept verbatim; every output must be the same bits, but for
+# the depth integration's solve: the library solves the normal equations by a banded Cholesky
+# factorisation, the reference by a general sparse LU, so the depths agree to rounding (a few float32 ulps).
+# The library's own routes (the box in image_to_patch, the whole image in the public steps) agree bit for bit.
 
 
 def _reference_difference(image, no_contact):
@@ -502,7 +505,7 @@ BOX_CASES = {
 
 
 @pytest.mark.parametrize("case", list(BOX_CASES))
-def test_image_to_patch_is_the_whole_image_computation_bit_for_bit(renderer, mesh_of, model, no_contact, case):
+def test_image_to_patch_is_the_whole_image_computation(renderer, mesh_of, model, no_contact, case):
     shape, point, kwargs, as_described = BOX_CASES[case]
     result, *_ = press(renderer, mesh_of, shape, point, [-1.0, 0.0, 0.0], **kwargs)
     mask, depth, p, n, noise, normals, direct = _reference_patch(result.image, no_contact, model)
@@ -511,25 +514,28 @@ def test_image_to_patch_is_the_whole_image_computation_bit_for_bit(renderer, mes
     est = contact_patch.image_to_patch(result.image, no_contact, model)
     assert est.contact
     np.testing.assert_array_equal(est.mask, mask)
-    assert est.depth.dtype == depth.dtype and np.array_equal(est.depth, depth)
-    assert np.array_equal(est.point, p) and np.array_equal(est.normal, n)
+    assert est.depth.dtype == depth.dtype
+    np.testing.assert_allclose(est.depth, depth, rtol=0, atol=1e-9)  # metres: the solvers' rounding only
+    np.testing.assert_allclose(est.point, p, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(est.normal, n, rtol=0, atol=1e-9)
     assert est.noise == noise
-    # the public steps on their own, too
+    # the public steps on their own, on the whole image: the box's results bit for bit
     diff = contact_patch.images_to_difference(result.image, no_contact)
     smooth = contact_patch.smooth_difference(diff, model.sigma)
     got_normals, got_direct = contact_patch.difference_to_normals(smooth, mask, model)
     assert np.array_equal(got_normals, normals) and np.array_equal(got_direct, direct)
     gradients = contact_patch.normals_to_log_gradients(normals)
     assert all(np.array_equal(a, b) for a, b in zip(gradients, _reference_log_gradients(normals)))
-    assert np.array_equal(contact_patch.normals_to_depth(normals, mask, model.grid_step, direct), depth)
-    got_point, got_normal = contact_patch.depth_to_contact(depth, normals, model.top_band)
-    assert np.array_equal(got_point, p) and np.array_equal(got_normal, n)
+    assert np.array_equal(contact_patch.normals_to_depth(normals, mask, model.grid_step, direct), est.depth)
+    got_point, got_normal = contact_patch.depth_to_contact(est.depth, normals, model.top_band)
+    assert np.array_equal(got_point, est.point) and np.array_equal(got_normal, est.normal)
 
 
 def test_normals_to_depth_needs_only_the_normals_near_the_mask(renderer, mesh_of, model, no_contact):
     """Normals far from the mask are never read: garbage there changes nothing; next to it, it does."""
     result, *_ = press(renderer, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0], depth=0.0008)
-    mask, depth, _, _, _, normals, direct = _reference_patch(result.image, no_contact, model)
+    mask, _, _, _, _, normals, direct = _reference_patch(result.image, no_contact, model)
+    depth = contact_patch.normals_to_depth(normals, mask, model.grid_step, direct)
     rows, cols = np.nonzero(mask)
     spoiled = normals.copy()
     far = np.ones((H, W), dtype=bool)
@@ -581,9 +587,44 @@ def test_regression_features_and_normals_are_the_textbook_evaluation(degree):
     got = contact_patch.regression_features(colour, rays, degree, 64.0)
     assert got.flags.c_contiguous and np.array_equal(got, _reference_features(colour, rays, degree, 64.0))
     assert contact_patch.regression_features(colour[:0], rays[:0], degree, 64.0).shape == (0, got.shape[1])
+    # the model evaluated chunk by chunk: the whole matrix's product, up to the rounding of its sums
+    coefficients = rng.standard_normal((got.shape[1], 3))
+    pred = contact_patch.regression_predict(colour, rays, degree, 64.0, coefficients)
+    assert pred.shape == (n, 3)
+    assert np.all(np.abs(pred - got @ coefficients) <= 1e-12 * (np.abs(got) @ np.abs(coefficients)))
+    assert contact_patch.regression_predict(colour[:0], rays[:0], degree, 64.0, coefficients).shape == (0, 3)
     lateral = rng.standard_normal((n, 2)) * rng.uniform(0.0, 1.5, (n, 1))
     lateral[:5] = [[0.0, 0.0], [1.0, 0.0], [0.0, -2.0], [np.sin(np.deg2rad(65.0)), 0.0], [1e-300, -1e-300]]
     assert np.array_equal(contact_patch.lateral_to_normals(lateral), _reference_lateral_to_normals(lateral))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_depth_integration_solve_is_the_least_squares_solution(seed):
+    """The banded Cholesky solve of the normal equations against a dense least-squares solve of the system
+    itself, on a blob of cells of a small grid (some touching its border, so some equations have one end
+    outside the mask and some none), with random right-hand sides."""
+    rng = np.random.default_rng(seed)
+    h, w = 9, 12
+    yy, xx = np.mgrid[:h, :w]
+    inside = (yy - rng.uniform(2, 6)) ** 2 / 9 + (xx - rng.uniform(2, 9)) ** 2 / 16 < rng.uniform(0.6, 1.5)
+    index = -np.ones((h, w), dtype=np.int64)
+    index[inside] = np.arange(int(inside.sum()))
+    n = int(inside.sum())
+    ends = np.concatenate([np.stack([index[:, :-1].ravel(), index[:, 1:].ravel()], axis=1),
+                           np.stack([index[:-1, :].ravel(), index[1:, :].ravel()], axis=1)])
+    ends = ends[(ends >= 0).any(axis=1)]
+    rhs, prior_log = rng.standard_normal(len(ends)), rng.standard_normal(n)
+    weight = contact_patch._PRIOR_WEIGHT
+    A = np.zeros((len(ends) + n, n))
+    for e, (a, b) in enumerate(ends):
+        if a >= 0:
+            A[e, a] = -1.0
+        if b >= 0:
+            A[e, b] = 1.0
+    A[len(ends):] = weight * np.eye(n)
+    expected = np.linalg.lstsq(A, np.concatenate([rhs, weight * prior_log]), rcond=None)[0]
+    got = contact_patch._solve_normal_equations(ends, rhs, prior_log)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
 
 
 def test_magnitude_adds_the_channels_as_numpy_did():

@@ -10,7 +10,7 @@ from tactile6d.core import geometry as g
 from tactile6d.core import sensor
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, MeshError
-from tactile6d.sim.render import DigitRenderer, gel_surface, mesh_arrays, pixel_rays
+from tactile6d.sim.render import CAMERA_POSITION, DigitRenderer, gel_surface, mesh_arrays, pixel_rays
 
 H, W = sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH
 IDENTITY = np.eye(4)
@@ -188,6 +188,30 @@ def test_contact_depth_is_contact_without_the_shading(background, sphere, cube):
     with pytest.raises(InputError, match="inside the DIGIT body"):
         DigitRenderer.from_default_config(background).contact_depth(
             cube, g.invert_pose(touching([0.02, 0, 0], [1, 0, 0], depth=0.012)))
+
+
+def test_ray_grid_gives_each_ray_and_its_gel_distance(background, sphere):
+    """The grid's rays (x = 1) and each one's distance to the gel along the camera axis: a press's depth is
+    that distance minus the hit's, so ``camera + (gel_t - depth) * ray`` lies on the object. The arrays
+    returned are copies."""
+    coarse = DigitRenderer.from_default_config(background, render_step=4, noise_std=0.0)
+    rays, gel_t = coarse.ray_grid()
+    h, w = coarse.grid_shape
+    assert rays.shape == (h * w, 3) and gel_t.shape == (h * w,) and rays.dtype == gel_t.dtype == np.float32
+    np.testing.assert_allclose(rays.reshape(h, w, 3), pixel_rays(W, H, 4), rtol=1e-6)
+    points, _ = gel_surface(rays.astype(np.float64))
+    np.testing.assert_allclose(gel_t, points[:, 0] - CAMERA_POSITION[0], rtol=1e-6)
+    T = touching([0.015, 0.0, 0.0], [1.0, 0.0, 0.0], depth=0.0015)
+    depth = coarse.contact_depth(sphere, g.invert_pose(T)).ravel()
+    pressed = depth > 0
+    assert pressed.sum() > 20
+    on_object = CAMERA_POSITION + (gel_t[pressed] - depth[pressed])[:, None] * rays[pressed]
+    in_object = on_object @ T[:3, :3].T + T[:3, 3]  # sensor frame -> the sphere's frame
+    np.testing.assert_allclose(np.linalg.norm(in_object, axis=1), 0.015, atol=2e-4)  # icosphere facets
+    rays[:] = 0.0
+    gel_t[:] = 0.0
+    again = coarse.ray_grid()
+    assert np.all(again[0][:, 0] == 1.0) and np.all(again[1] > 0.0)
 
 
 def test_degenerate_meshes_are_mesh_errors(renderer):

@@ -82,19 +82,6 @@ class SceneReading:
         return bool(self.problems) or any(s.problems for s in self.sensors)
 
 
-def image_problems(i: int, image: np.ndarray, background: np.ndarray) -> list[str]:
-    """Why image i (320, 240, 3) uint8 would be refused against its no-contact image (the checks of
-    ``inputs.check_images_against_backgrounds``, all of them rather than the first)."""
-    if inputs.is_grey(image):
-        return [f"image {i} is grey (its three channels are equal everywhere), but a DIGIT image is RGB colour"]
-    if inputs.looks_like_bgr(image, background):
-        as_given, swapped = inputs.background_mismatch(image, background)
-        return [f"image {i} looks like BGR: its red - blue differs from its no-contact image's by {as_given:.0f} "
-                f"grey levels as given and by {swapped:.0f} swapped (convert with cv2.cvtColor(image, "
-                "cv2.COLOR_BGR2RGB))"]
-    return []
-
-
 def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: SelectSettings) -> SceneReading:
     """The reading steps of ``Estimator.estimate`` on one scene, every problem collected.
 
@@ -115,7 +102,8 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
     aligned, fits = encode.align_light(select, images, per_sensor)
     sensors = []
     for i, (image, background) in enumerate(zip(images, per_sensor)):
-        problems = image_problems(i, image, background)
+        problem = inputs.image_problem(i, image, background)
+        problems = [] if problem is None else [problem]
         try:
             patch = image_to_patch(aligned[i], background, model)
         except InputError as exc:

@@ -150,19 +150,27 @@ def looks_like_bgr(image: np.ndarray, background: np.ndarray) -> bool:
     return as_given > BGR_RATIO * swapped and as_given - swapped > BGR_MIN_GAIN
 
 
+def image_problem(i: int, image: np.ndarray, background: np.ndarray) -> str | None:
+    """Why image i (320, 240, 3) uint8 is plausibly wrong against its own no-contact image (320, 240, 3): grey,
+    or its channels swapped (BGR passed as RGB); None when neither."""
+    if is_grey(image):
+        return (f"image {i} is grey (its three channels are equal everywhere), but a DIGIT image is RGB colour: "
+                "read it with tactile6d.io.read_tactile_image")
+    if looks_like_bgr(image, background):
+        as_given, swapped = background_mismatch(image, background)
+        return (f"image {i} looks like BGR: its red - blue differs from its no-contact image's by {as_given:.0f} "
+                f"grey levels as given and by {swapped:.0f} swapped; pass RGB images: use read_tactile_image or "
+                "convert with cv2.cvtColor(image, cv2.COLOR_BGR2RGB)")
+    return None
+
+
 def check_images_against_backgrounds(images: np.ndarray, backgrounds: np.ndarray) -> None:
     """InputError naming the first image (L, 320, 240, 3) uint8 that is grey or looks BGR against its own
-    no-contact image (backgrounds (L, 320, 240, 3), ``backgrounds_per_sensor``)."""
+    no-contact image (backgrounds (L, 320, 240, 3), ``backgrounds_per_sensor``): ``image_problem``'s."""
     for i, (image, background) in enumerate(zip(images, backgrounds)):
-        if is_grey(image):
-            raise InputError(f"image {i} is grey (its three channels are equal everywhere), but a DIGIT image "
-                             "is RGB colour: read it with tactile6d.io.read_tactile_image")
-        if looks_like_bgr(image, background):
-            as_given, swapped = background_mismatch(image, background)
-            raise InputError(f"image {i} looks like BGR: its red - blue differs from its no-contact image's by "
-                             f"{as_given:.0f} grey levels as given and by {swapped:.0f} swapped; pass RGB "
-                             "images: use read_tactile_image or convert with cv2.cvtColor(image, "
-                             "cv2.COLOR_BGR2RGB)")
+        problem = image_problem(i, image, background)
+        if problem is not None:
+            raise InputError(problem)
 
 
 # --- sensor layouts that cannot be right, or say little ----------------------------------------------

@@ -11,8 +11,11 @@ object's frame, built once per mesh, and every pair's rays are brought into that
 instead poses the mesh and builds a scene per pair, which costs ten times the rays' traversal). The hit
 triangle's distance is then recomputed as the renderer recomputes it, from the corners posed in the
 sensor frame, so that a pair's depths are the renderer's bit for bit wherever both pick the same
-triangle (they may pick the other of two triangles that share an edge a ray meets: then the depths
-differ by the triangles' bend there, far below a micrometre on these meshes). The renderer leaves out
+triangle. They may pick different ones where a ray passes within about 0.1 micrometre of a triangle's
+edge, since Embree works in single precision and the object frame's coordinates are other numbers: between
+two triangles that share the edge the depths then differ by the bend there, far below a micrometre, but
+at the object's outline one cast may hit where the other misses, and the depth there differs by the whole
+press at that ray (up to 2 mm on the tracked sequences, on a few rays in a thousand; docs/speed.md). The renderer leaves out
 the triangles that face away from the camera; the whole mesh's first hit on such a triangle (a ray
 entering through a hole, or a camera inside the object) sends that pair to the renderer itself.
 
@@ -32,8 +35,7 @@ from embreex.mesh_construction import TriangleMesh
 
 from tactile6d.core import sensor
 from tactile6d.core.geometry import invert_pose
-from tactile6d.sim.render import (CAMERA_POSITION, DigitRenderer, MeshArrays, gel_surface, mesh_arrays, pixel_rays,
-                                  ray_triangle_hits)
+from tactile6d.sim.render import CAMERA_POSITION, DigitRenderer, MeshArrays, mesh_arrays, ray_triangle_hits
 
 # Rays per Embree call: bounds the batch's buffers (about 40 bytes a ray) whatever the number of pairs.
 _RAYS_PER_CAST = 1 << 18
@@ -50,16 +52,6 @@ def depth_renderer(step: int) -> DigitRenderer:
     """
     blank = np.zeros((sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH, 3), dtype=np.uint8)
     return DigitRenderer.from_default_config(blank, render_step=int(step), strict=False, force=0.0, workers=1)
-
-
-@functools.lru_cache(maxsize=8)
-def _ray_grid(step: int) -> tuple[np.ndarray, np.ndarray]:
-    """The renderer's ray grid of ``step``: rays (n, 3) float32 (x = 1) and gel distances (n,) float32,
-    flattened row by row, computed as ``DigitRenderer`` computes its own."""
-    rays = pixel_rays(sensor.IMAGE_WIDTH, sensor.IMAGE_HEIGHT, step)
-    gel_points, _ = gel_surface(rays)
-    gel_t = (gel_points[..., 0] - CAMERA_POSITION[0]).ravel().astype(np.float32)
-    return np.ascontiguousarray(rays.reshape(-1, 3), dtype=np.float32), gel_t
 
 
 class _ObjectScene:
@@ -106,7 +98,7 @@ def poses_to_gel_depths(
     T_objects = np.asarray(T_world_object, dtype=np.float64).reshape(-1, 4, 4)
     T_sensors = np.asarray(T_world_sensors, dtype=np.float64).reshape(-1, 4, 4)
     renderer = depth_renderer(int(step))
-    rays, gel_t = _ray_grid(int(step))
+    rays, gel_t = renderer.ray_grid()
     T_sensors_world = [invert_pose(T) for T in T_sensors]
     # Composed one pair at a time, as DigitRenderer.render does, so that the posed corners are its bits.
     pairs = np.stack([T_sw @ T_wo for T_wo in T_objects for T_sw in T_sensors_world])

@@ -528,6 +528,12 @@ class DigitRenderer:
             depth[pixels] = self._gel_t[pixels] - t
         return np.ascontiguousarray(diff.T).reshape(h, w, 3), depth.reshape(h, w)
 
+    def ray_grid(self) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's rays on this renderer's grid, flattened row by row: rays (n, 3) float32 (x = 1, u, v)
+        and each ray's distance to the gel along the camera axis (n,) float32, the numbers every cast of the
+        renderer uses (copies; n = h * w of ``grid_shape``)."""
+        return self._rays.reshape(-1, 3).copy(), self._gel_t.copy()
+
     def contact_depth(self, mesh: trimesh.Trimesh | MeshArrays, T_sensor_object: np.ndarray) -> np.ndarray:
         """The press depth of ``contact`` alone, (h, w) float32 metres, without shading: for callers that
         need only where and how deep the object presses (render-and-compare). Bit-identical to it.
