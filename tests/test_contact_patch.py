@@ -4,6 +4,8 @@ Contacts are rendered by the simulator on superquadrics with known geometry; the
 one made once per module (the default is larger and more accurate).
 """
 
+import warnings
+
 import cv2
 import numpy as np
 import pytest
@@ -126,6 +128,29 @@ def test_integrating_true_normals_recovers_the_true_depth(renderer, mesh_of):
     pressed = result.mask
     assert abs(depth.max() - result.depth.max()) < 1e-4
     assert np.median(np.abs(depth[pressed] - result.depth[pressed])) < 5e-5
+
+
+def test_normals_whose_integral_runs_away_give_finite_depths():
+    """Normals that integrate to a gel distance of e^100 m (a pyramid of log-slope 2 a pixel, inward) must
+    give finite depths, no warning: before the cap, the float32 cast made the peak infinite and bilinear
+    interpolation spread NaN over the whole mask."""
+    rays = np.moveaxis(contact_patch._geometry_planes()[0], 0, -1)
+    rows, cols = np.mgrid[0:H, 0:W]
+    g_col, g_row = 2.0 * np.sign(cols - (W - 1) / 2), 2.0 * np.sign(rows - (H - 1) / 2)
+    # d log t / d column = -n_y / (f n.r) (and n_z for rows): pick n.r = -c, solve n_x, normalise.
+    c = 0.01
+    n_y, n_z = g_col * contact_patch._FOCAL * c, g_row * contact_patch._FOCAL * c
+    n_x = (-c - n_y * rays[..., 1] - n_z * rays[..., 2]) / rays[..., 0]
+    normals = np.stack([n_x, n_y, n_z], axis=-1)
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    mask = np.zeros((H, W), bool)
+    mask[100:220, 60:180] = True
+    np.testing.assert_allclose(contact_patch.normals_to_log_gradients(normals)[0][mask], -g_col[mask])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        depth = contact_patch.normals_to_depth(normals, mask, 4)
+    assert np.isfinite(depth).all() and depth.min() >= 0.0
+    assert (depth[mask] == 0.0).mean() > 0.9  # the runaway centre is no press
 
 
 # --- known contacts, off-centre and tilted ----------------------------------------------------------------
@@ -283,9 +308,9 @@ def test_saturated_or_blank_images_raise_one_clear_error_or_report_no_contact(mo
     "image, background, match",
     [
         (np.zeros((H, W, 3), np.float32), np.zeros((H, W, 3), np.uint8), "dtype"),
-        (np.zeros((W, H, 3), np.uint8), np.zeros((H, W, 3), np.uint8), "shape"),
+        (np.zeros((W, H, 3), np.uint8), np.zeros((H, W, 3), np.uint8), "rotated by 90 degrees"),
         (np.zeros((H, W), np.uint8), np.zeros((H, W, 3), np.uint8), "shape"),
-        (np.zeros((H, W, 3), np.uint8), np.zeros((160, 120, 3), np.uint8), "no-contact image has shape"),
+        (np.zeros((H, W, 3), np.uint8), np.zeros((160, 120, 3), np.uint8), "no-contact image is 120 wide x 160 high"),
         (np.zeros((H, W, 3), np.uint8), np.zeros((H, W, 3), np.int64), "no-contact image has dtype"),
     ],
 )

@@ -1,4 +1,5 @@
 import gc
+import sys
 
 import numpy as np
 import pytest
@@ -108,6 +109,21 @@ def test_a_mesh_scene_is_built_once_and_dropped_with_the_mesh():
     del mesh, scene
     gc.collect()
     assert key not in gel_press._SCENES
+
+
+def test_a_scene_is_dropped_quietly_after_the_module_globals_are_gone(monkeypatch):
+    """At interpreter exit a module's globals may be set to None before the last meshes die; the scene's
+    callback must not need them (it printed "Exception ignored ... 'NoneType' object has no attribute 'pop'")."""
+    mesh = trimesh.creation.box(extents=(0.12, 0.08, 0.05))
+    scenes, key = gel_press._SCENES, id(mesh)
+    gel_press._object_scene(mesh)
+    monkeypatch.setattr(gel_press, "_SCENES", None)  # as module teardown leaves it
+    unraisable = []
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
+    del mesh
+    gc.collect()
+    assert not unraisable, [str(u.exc_value) for u in unraisable]
+    assert key not in scenes
 
 
 def test_depth_on_a_flat_face_is_the_gel_minus_the_plane():

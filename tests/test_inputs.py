@@ -69,6 +69,32 @@ def test_grey_and_bgr_images_are_named(default_background):
         inputs.check_images_against_backgrounds(bgr, backgrounds)
 
 
+def test_a_raw_camera_frame_is_named_as_one_everywhere_an_image_is_read(tmp_path, default_background):
+    """The camera's raw frame (240 rows x 320 columns) is ``np.rot90`` of what digit-interface returns: images,
+    no-contact images, image files and the contact patch all name the turn; other sizes get the plain error."""
+    import cv2
+
+    from tactile6d.perception import contact_patch
+
+    raw = np.ascontiguousarray(np.rot90(default_background, -1))
+    assert raw.shape == (240, 320, 3) and (np.rot90(raw) == default_background).all()
+    turned = r"320 wide x 240 high, a DIGIT image is 240 wide x 320 high .*rotated by 90 degrees.*np\.rot90\(frame\)"
+    with pytest.raises(InputError, match="image 1 is " + turned):
+        inputs.check_images([default_background, raw], 2)
+    with pytest.raises(InputError, match="background 0 is " + turned + r".*one per sensor"):
+        inputs.check_backgrounds(np.stack([raw, raw]))
+    cv2.imwrite(str(tmp_path / "raw.png"), raw)
+    with pytest.raises(InputError, match="raw.png is " + turned):
+        read_tactile_image(tmp_path / "raw.png")
+    with pytest.raises(InputError, match="no_contact is " + turned):
+        contact_patch.check_image(raw, "no_contact")
+    with pytest.raises(InputError, match=r"image 0 is 240 wide x 320 high.*it has 4 channels"):
+        inputs.check_images([np.zeros((320, 240, 4), np.uint8)], 1)
+    with pytest.raises(InputError, match=r"image 0 is 120 wide x 160 high, a DIGIT image is 240 wide x 320 high "
+                                         r"\(array shape \(320, 240, 3\)\)$"):
+        inputs.check_images([np.zeros((160, 120, 3), np.uint8)], 1)
+
+
 def test_a_background_whose_red_and_blue_agree_never_calls_an_image_bgr():
     """With R = B in the no-contact image, the swap changes nothing: no evidence, no error."""
     rng = np.random.default_rng(0)

@@ -176,6 +176,28 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
 TACTILE_IMAGE_SHAPE = (320, 240, 3)  # rows (sensor z) x columns (sensor y) x RGB
 
 
+def tactile_shape_problem(shape: tuple[int, ...], name: str) -> str | None:
+    """An image's shape -> None if it is a DIGIT image's (320, 240, 3), else the sentence that says what is wrong.
+
+    A DIGIT camera's raw frame is 320 wide x 240 high; digit-interface's ``Digit.get_frame()`` turns it into
+    the 240 x 320 image this project reads (a transpose and a vertical flip: ``np.rot90(frame)``), so a
+    rotated size gets that hint.
+    """
+    shape = tuple(int(n) for n in shape)
+    if shape == TACTILE_IMAGE_SHAPE:
+        return None
+    size = f"{name} is {shape[1]} wide x {shape[0]} high" if len(shape) >= 2 else f"{name} has shape {shape}"
+    problem = f"{size}, a DIGIT image is 240 wide x 320 high (array shape (320, 240, 3))"
+    if shape[:2] == TACTILE_IMAGE_SHAPE[1::-1]:
+        problem += (": it looks rotated by 90 degrees, as the camera's raw frame is; digit-interface's "
+                    "Digit.get_frame() returns np.rot90(frame), which is the image to pass")
+    elif len(shape) == 3 and shape[:2] == TACTILE_IMAGE_SHAPE[:2]:
+        problem += f": it has {shape[2]} channels, a DIGIT image has 3 (RGB)"
+    elif len(shape) == 2 and shape == TACTILE_IMAGE_SHAPE[:2]:
+        problem += ": it has one channel, a DIGIT image has 3 (RGB)"
+    return problem
+
+
 def read_tactile_image(path: str | os.PathLike) -> np.ndarray:
     """A DIGIT image file -> (320, 240, 3) uint8 RGB. InputError if unreadable or of another size."""
     import cv2
@@ -185,8 +207,9 @@ def read_tactile_image(path: str | os.PathLike) -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise InputError(f"{path}: not a readable image")
-    if image.shape != TACTILE_IMAGE_SHAPE:
-        raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, a DIGIT image is 240 wide x 320 high")
+    problem = tactile_shape_problem(image.shape, str(path))
+    if problem is not None:
+        raise InputError(problem)
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import invert_pose, is_rotation, make_pose, quaternion_to_rotmat
-from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE
+from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE, tactile_shape_problem
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -179,13 +179,9 @@ def _topic_connections(reader, path, topics: Sequence[str], types: Sequence[str]
 
 
 def _check_digit_shape(rows: int, cols: int, topic: str) -> None:
-    if (rows, cols) == TACTILE_IMAGE_SHAPE[:2]:
-        return
-    if (rows, cols) == TACTILE_IMAGE_SHAPE[1::-1]:
-        raise InputError(f"{topic}: images are {cols} wide x {rows} high, a DIGIT image is 240 wide x 320 high: the "
-                         f"camera stream looks rotated by 90 degrees; rotate the images back (e.g. np.rot90) when "
-                         f"recording or converting")
-    raise InputError(f"{topic}: images are {cols} wide x {rows} high, a DIGIT image is 240 wide x 320 high")
+    problem = tactile_shape_problem((rows, cols, 3), f"{topic}: an image")
+    if problem is not None:
+        raise InputError(problem)
 
 
 def image_from_message(msg, topic: str) -> np.ndarray:

@@ -58,6 +58,7 @@ from tactile6d.core import sensor
 from tactile6d.core.config import default_section
 from tactile6d.core.errors import DataError, InputError
 from tactile6d.core.geometry import axis_angle_to_rotmat, invert_pose, make_pose
+from tactile6d.data.hdf5 import tactile_shape_problem
 from tactile6d.sim import superquadrics as sq
 from tactile6d.sim.render import CAMERA_POSITION, CAMERA_YFOV, DigitRenderer, gel_surface, mesh_arrays, pixel_rays
 
@@ -184,8 +185,9 @@ def check_image(image, name: str = "image") -> np.ndarray:
     a = np.asarray(image)
     if a.dtype != np.uint8:
         raise InputError(f"{name} has dtype {a.dtype}; a tactile image is uint8")
-    if a.shape != IMAGE_SHAPE:
-        raise InputError(f"{name} has shape {a.shape}; a DIGIT image is {IMAGE_SHAPE}: 320 rows x 240 columns x RGB")
+    problem = tactile_shape_problem(a.shape, name)
+    if problem is not None:
+        raise InputError(problem)
     return a
 
 
@@ -685,10 +687,13 @@ def _box_depth(g_col: np.ndarray, g_row: np.ndarray, mask: np.ndarray, k: int, p
         ends.append(np.stack([a_i, b_i], axis=1))
         rhs.append(r)
     t_prior = gel_t - (0.0 if prior is None else _block_mean(prior, k))
-    L = _solve_normal_equations(np.concatenate(ends), np.concatenate(rhs), np.log(np.maximum(t_prior, 1e-3))[coarse_mask])
+    log_prior = np.log(np.maximum(t_prior, 1e-3))[coarse_mask]
     coarse_log = log_gel.copy()
-    coarse_log[coarse_mask] = L
-    coarse_depth = gel_t - np.exp(coarse_log)
+    coarse_log[coarse_mask] = _solve_normal_equations(np.concatenate(ends), np.concatenate(rhs), log_prior)
+    # A gel distance of a kilometre is no press, and its depth still turns every pixel it is interpolated
+    # into negative (a bilinear weight is at least 1/(2k)), hence 0, as any larger one would; the cap keeps
+    # it finite in float32, where a larger one may be infinite and spread NaN through the interpolation.
+    coarse_depth = gel_t - np.exp(np.minimum(coarse_log, np.log(1e3)))
     full = cv2.resize(coarse_depth.astype(np.float32), (w * k, h * k), interpolation=cv2.INTER_LINEAR)
     depth[: h * k, : w * k] = full
     depth[~mask] = 0.0

@@ -17,7 +17,7 @@ import numpy as np
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import is_rotation
 from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap
-from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE
+from tactile6d.data.hdf5 import tactile_shape_problem
 
 
 def check_sensor_poses(T_world_sensors) -> np.ndarray:
@@ -49,9 +49,9 @@ def check_images(images, n_sensors: int) -> np.ndarray:
         raise InputError(f"{len(images)} tactile images for {n_sensors} sensor poses")
     for i, image in enumerate(images):
         image = np.asarray(image)
-        if image.shape != TACTILE_IMAGE_SHAPE:
-            raise InputError(f"image {i} has shape {image.shape}, a DIGIT image is (320, 240, 3): "
-                             "320 rows x 240 columns x RGB")
+        problem = tactile_shape_problem(image.shape, f"image {i}")
+        if problem is not None:
+            raise InputError(problem)
         if image.dtype != np.uint8:
             raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8")
     return np.stack([np.asarray(image) for image in images])
@@ -82,9 +82,10 @@ def check_backgrounds(backgrounds) -> np.ndarray:
 
 
 def _check_background(background: np.ndarray, name: str) -> None:
-    if background.shape != TACTILE_IMAGE_SHAPE:
-        raise InputError(f"{name} has shape {background.shape}, a DIGIT no-contact image is (320, 240, 3): "
-                         "320 rows x 240 columns x RGB (or give (L, 320, 240, 3), one per sensor)")
+    problem = tactile_shape_problem(background.shape, name)
+    if problem is not None:
+        raise InputError(f"{problem} (no-contact images: one (320, 240, 3) for all sensors or (L, 320, 240, 3), "
+                         "one per sensor)")
     if background.dtype != np.uint8:
         raise InputError(f"{name} has dtype {background.dtype}, no-contact images must be uint8 like the "
                          "tactile images")

@@ -15,9 +15,10 @@ triangle. They may pick different ones where a ray passes within about 0.1 micro
 edge, since Embree works in single precision and the object frame's coordinates are other numbers: between
 two triangles that share the edge the depths then differ by the bend there, far below a micrometre, but
 at the object's outline one cast may hit where the other misses, and the depth there differs by the whole
-press at that ray (up to 2 mm on the tracked sequences, on a few rays in a thousand; docs/speed.md). The renderer leaves out
-the triangles that face away from the camera; the whole mesh's first hit on such a triangle (a ray
-entering through a hole, or a camera inside the object) sends that pair to the renderer itself.
+press at that ray (up to 2 mm on the tracked sequences, on a few rays in a thousand; docs/speed.md). The
+renderer leaves out the triangles that face away from the camera; the whole mesh's first hit on such a
+triangle (a ray entering through a hole, or a camera inside the object) sends that pair to the renderer
+itself.
 
 The image-consistent contact metric compares the contact masks (``depth > 0``) predicted at an estimated
 pose and at the true pose, sensor by sensor, by their intersection over union.
@@ -77,7 +78,9 @@ def _object_scene(mesh: trimesh.Trimesh | MeshArrays) -> _ObjectScene:
     if entry is not None and entry[0]() is mesh:
         return entry[1]
     scene = _ObjectScene(mesh_arrays(mesh))
-    _SCENES[key] = (weakref.ref(mesh, lambda _, key=key: _SCENES.pop(key, None)), scene)
+    # The callback holds the dict itself: at interpreter exit the module's globals may be gone before the
+    # last meshes are, and a lookup of the global name would then fail inside the callback.
+    _SCENES[key] = (weakref.ref(mesh, lambda _, key=key, scenes=_SCENES: scenes.pop(key, None)), scene)
     return scene
 
 
