@@ -127,6 +127,24 @@ def test_gd_step_is_the_gradient_of_the_loss():
     np.testing.assert_allclose(grad, numeric, atol=1e-7)
 
 
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_gd_program_holds_no_approximate_square_root(precision):
+    """XLA rewrites x / sqrt(y) as x * rsqrt(y), and compiles rsqrt on the CPU from the approximate vrsqrtps
+    and two Newton steps, whose last bit is the CPU vendor's: the paper's gradient descent, chaotic at its
+    gains, then ended elsewhere on an Intel Xeon than on an AMD EPYC. Its optimised program (the gradient
+    included) must take square roots only, which every x86-64 CPU rounds alike."""
+    import jax
+    import jax.numpy as jnp
+
+    with jax.enable_x64(precision == "float64"):
+        dtype = jnp.dtype(precision)
+        program = opt._gd_program(3, 0.01, 1.0)
+        text = program.lower(jnp.zeros((6, 16), dtype), jnp.zeros((3, 3, 16), dtype),
+                             jnp.zeros((3, 3), dtype)).compile().as_text()
+    assert " sqrt(" in text
+    assert "rsqrt(" not in text
+
+
 def test_gd_steps_are_repeated_single_steps_with_each_gain_on_its_components():
     # Three steps at gains (0.3, 0.7) against a naive loop: xi <- xi - diag(0.3 I3, 0.7 I3) dE/dxi, the
     # gradient by central differences, in float64.

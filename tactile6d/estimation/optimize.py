@@ -291,14 +291,29 @@ def _gd_program(n_steps: int, gain_t: float, gain_r: float):
     import jax
     import jax.numpy as jnp
 
+    # No division by a square root, anywhere in the program or its gradient: XLA rewrites x / sqrt(y) as
+    # x * rsqrt(y) and compiles rsqrt on the CPU from the approximate vrsqrtps and two Newton steps, whose
+    # last bit depends on the CPU's vendor (docs/reproducibility.md, Across machines). JAX's own derivative
+    # of sqrt is 0.5 / sqrt(x); this one is 0.5 * sqrt(x) / x, a correctly rounded square root and divisions.
+    @jax.custom_jvp
+    def sqrt(x):
+        return jnp.sqrt(x)
+
+    @sqrt.defjvp
+    def _sqrt_jvp(primals, tangents):
+        (x,), (dx,) = primals, tangents
+        y = jnp.sqrt(x)
+        return y, dx * (0.5 * y / x)
+
     def rotation(w0, w1, w2):
         # R = I + a K + b K^2 with K^2 = w w^T - theta^2 I (Rodrigues), series near 0 where the closed
-        # forms lose precision; the double where keeps the gradient finite at omega = 0.
+        # forms lose precision; the double where keeps the gradient finite at omega = 0. sin(theta) / theta
+        # is written sin(theta) theta / theta^2, for the reason above.
         theta2 = w0 * w0 + w1 * w1 + w2 * w2
         small = theta2 < 1e-6
         safe = jnp.where(small, 1.0, theta2)
-        theta = jnp.sqrt(safe)
-        a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
+        theta = sqrt(safe)
+        a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) * theta / safe)
         b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / safe)
         return (
             (1.0 + b * (w0 * w0 - theta2), -a * w2 + b * w0 * w1, a * w1 + b * w0 * w2),
@@ -318,7 +333,7 @@ def _gd_program(n_steps: int, gain_t: float, gain_r: float):
                 r2 = r2 + r * r
             # sqrt has an infinite derivative at 0: an exactly fitted point contributes no gradient.
             positive = r2 > 0
-            total = total + jnp.where(positive, jnp.sqrt(jnp.where(positive, r2, 1.0)), 0.0)
+            total = total + jnp.where(positive, sqrt(jnp.where(positive, r2, 1.0)), 0.0)
         return jnp.sum(total) / p.shape[0]
 
     gains = (gain_t,) * 3 + (gain_r,) * 3
