@@ -131,7 +131,7 @@ def test_integrating_true_normals_recovers_the_true_depth(renderer, mesh_of):
 
 
 def test_normals_whose_integral_runs_away_give_finite_depths():
-    """Normals that integrate to a gel distance of e^100 m (a pyramid of log-slope 2 a pixel, inward) must
+    """Normals that integrate to a gel distance over e^100 m (a pyramid of log-slope 2 a pixel, inward) must
     give finite depths, no warning: before the cap, the float32 cast made the peak infinite and bilinear
     interpolation spread NaN over the whole mask."""
     rays = np.moveaxis(contact_patch._geometry_planes()[0], 0, -1)
