@@ -207,8 +207,8 @@ def test_bad_sensor_poses_are_rejected(world, kind, message):
 @pytest.mark.parametrize(
     "images,message",
     [(np.zeros((2, 320, 240, 3), np.uint8), "2 tactile images for 3 sensor poses"),
-     (np.zeros((3, 240, 320, 3), np.uint8), r"image 0 has shape \(240, 320, 3\)"),
-     ([np.zeros((320, 240, 3), np.uint8)] * 2 + [np.zeros((320, 240), np.uint8)], r"image 2 has shape \(320, 240\)"),
+     (np.zeros((3, 240, 320, 3), np.uint8), r"image 0 is 320 wide x 240 high, .*rotated by 90 degrees"),
+     ([np.zeros((320, 240, 3), np.uint8)] * 2 + [np.zeros((320, 240), np.uint8)], r"image 2 is 240 wide x 320 high, .*it has one channel"),
      (np.zeros((3, 320, 240, 3), np.float32), "image 0 has dtype float32"),
      (None, "needs one tactile image per sensor")],
 )
@@ -516,10 +516,10 @@ COLOUR = np.broadcast_to(np.array([60, 90, 120], np.uint8), (320, 240, 3))  # a 
 
 @pytest.mark.parametrize("backgrounds,message", [
     (np.stack([COLOUR] * 2), "2 background images for 3 sensors"),
-    (np.zeros((240, 320, 3), np.uint8), r"background has shape \(240, 320, 3\)"),
+    (np.zeros((240, 320, 3), np.uint8), r"background is 320 wide x 240 high, .*rotated by 90 degrees"),
     (np.stack([COLOUR] * 3).astype(np.float32), "background 0 has dtype float32"),
     (np.full((320, 240, 3), 90, np.uint8), "background is grey"),
-    ([COLOUR, COLOUR, COLOUR[..., 0]], r"background 2 has shape \(320, 240\)"),
+    ([COLOUR, COLOUR, COLOUR[..., 0]], r"background 2 is 240 wide x 320 high, .*it has one channel"),
 ])
 def test_bad_backgrounds_are_named(world, three_units, backgrounds, message):
     e = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
