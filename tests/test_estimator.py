@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from tactile6d.core import geometry as g
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ArtifactError, ConfigError, InputError
-from tactile6d.core.sensor import bodies_overlap, sensor_poses_touching
+from tactile6d.core.sensor import BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
 from tactile6d.core.settings import Settings
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_scene_dir, write_artifact
@@ -552,6 +552,18 @@ def test_images_read_wrong_are_refused_before_any_work(world, three_units, data_
     e.estimate(T, on_unit, backgrounds=units)
     with pytest.raises(InputError, match="image 2 looks like BGR"):
         e.estimate(T, np.concatenate([on_unit[:2], on_unit[2:, ..., ::-1]]), backgrounds=units)
+
+
+def test_bodies_may_overlap_by_the_declared_sensor_pose_error(world):
+    """Two bodies 3 mm into each other: within two standard deviations of two sensors' relative error at the
+    default 1.5 mm and 1.5 deg (4.7 mm), so a hand's reported poses are read; declared exact, they cannot
+    both be right."""
+    T = world["T_world_sensors"].copy()
+    T[2] = T[0]
+    T[2, :3, 3] += (2 * BOX_HALF_EXTENTS[1] - 0.003) * T[0, :3, 1]
+    make_estimator(world).check_scene(T, world["images"])
+    with pytest.raises(InputError, match="sensors 0 and 2 overlap"):
+        make_estimator(world, **EXACT_POSES).check_scene(T, world["images"])
 
 
 def test_overlapping_sensors_and_one_sensor(world):

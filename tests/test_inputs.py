@@ -11,6 +11,7 @@ import trimesh
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import make_pose, random_rotations, text_to_poses
+from tactile6d.core.settings import SensorSettings
 from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
 from tactile6d.data.hdf5 import read_scene_dir, read_tactile_image
 from tactile6d.perception import inputs
@@ -143,9 +144,9 @@ def sampled_overlap(T_a, T_b, n=20000, seed=0) -> bool:
     return bool(np.any(np.all(np.abs(in_b - BOX_CENTER) < BOX_HALF_EXTENTS, axis=1)))
 
 
-def overlap_found(T) -> bool:
+def overlap_found(T, margin=0.0) -> bool:
     try:
-        inputs.check_bodies_apart(T, margin=0.0)
+        inputs.check_bodies_apart(T, margin)
     except InputError:
         return True
     return False
@@ -173,6 +174,20 @@ def test_overlapping_sensors_are_named_and_side_by_side_ones_pass():
     T[2, 1, 3] = -2 * BOX_HALF_EXTENTS[1] + 2e-3  # 2 mm into sensor 0
     with pytest.raises(InputError, match="sensors 0 and 2 overlap"):
         inputs.check_bodies_apart(T)
+
+
+def test_the_overlap_margin_follows_the_sensor_pose_error():
+    """Exact poses keep the 0.5 mm margin; poses off by sigma per axis (the default, 1.5 mm and 1.5 deg) let two
+    bodies overlap by up to 2 sqrt(2) contact sigma (each shrunk by half of it), and no farther."""
+    default = SensorSettings.from_cfg(compose_config().sensors)
+    assert inputs.body_overlap_margin(0.0) == inputs.BODY_OVERLAP_MARGIN
+    margin = inputs.body_overlap_margin(default.pair_distance_tolerance)
+    assert margin == pytest.approx(np.sqrt(2) * default.contact_sigma) and 2.3e-3 < margin < 2.4e-3
+    T = np.tile(np.eye(4), (2, 1, 1))
+    for overlap, refused in ((2 * margin - 1e-4, False), (2 * margin + 1e-4, True)):
+        T[1, 1, 3] = 2 * BOX_HALF_EXTENTS[1] - overlap
+        assert overlap_found(T, margin) == refused
+        assert overlap_found(T, inputs.BODY_OVERLAP_MARGIN)  # either is refused with exact poses
 
 
 def test_one_sensor_warns_that_the_pose_is_under_determined():

@@ -40,7 +40,7 @@ from tactile6d.cli.estimate import scene_backgrounds, split_overrides
 from tactile6d.core import sensor
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import DataError, InputError
-from tactile6d.core.settings import SelectSettings
+from tactile6d.core.settings import SelectSettings, SensorSettings
 from tactile6d.data.hdf5 import read_background_images, read_scene_dir
 from tactile6d.perception import encode, inputs, photometric
 from tactile6d.perception.contact_patch import ContactPatch, PatchModel, image_to_patch, point_to_pixel
@@ -82,7 +82,8 @@ class SceneReading:
         return bool(self.problems) or any(s.problems for s in self.sensors)
 
 
-def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: SelectSettings) -> SceneReading:
+def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: SelectSettings,
+               sensors: SensorSettings) -> SceneReading:
     """The reading steps of ``Estimator.estimate`` on one scene, every problem collected.
 
     T_world_sensors (L, 4, 4); images (L, 320, 240, 3) uint8 RGB; backgrounds (320, 240, 3) for every sensor
@@ -96,7 +97,7 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
     per_sensor = inputs.backgrounds_per_sensor(inputs.check_backgrounds(backgrounds), T.shape[0])
     scene_problems = []
     try:
-        inputs.check_bodies_apart(T)
+        inputs.check_bodies_apart(T, inputs.body_overlap_margin(sensors.pair_distance_tolerance))
     except InputError as exc:
         scene_problems.append(str(exc))
     aligned, fits = encode.align_light(select, images, per_sensor)
@@ -228,7 +229,8 @@ def main(argv: list[str]) -> int:
     given = read_background_images(args.background) if args.background else None
     backgrounds, source = scene_backgrounds_or_default(scene, len(T_world_sensors), given, cfg)
     model = encode.load_patch_model(artifacts)
-    reading = read_scene(T_world_sensors, images, backgrounds, model, SelectSettings.from_cfg(cfg.select))
+    reading = read_scene(T_world_sensors, images, backgrounds, model, SelectSettings.from_cfg(cfg.select),
+                         SensorSettings.from_cfg(cfg.sensors))
 
     if args.out is not None:
         import matplotlib.pyplot as plt

@@ -48,6 +48,7 @@ from tactile6d.perception.contact_patch import PatchModel
 from tactile6d.perception.contacts import Contacts
 from tactile6d.perception.inputs import (
     backgrounds_per_sensor,
+    body_overlap_margin,
     check_backgrounds,
     check_bodies_apart,
     check_images,
@@ -290,7 +291,7 @@ class Estimator:
         per_sensor = self.backgrounds(T.shape[0], backgrounds)
         if reads_images and per_sensor is not None:
             check_images_against_backgrounds(images, per_sensor)
-        check_bodies_apart(T)
+        check_bodies_apart(T, body_overlap_margin(self.settings.sensors.pair_distance_tolerance))
         warn_if_underdetermined(T.shape[0])
         return T, images, per_sensor
 

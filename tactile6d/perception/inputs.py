@@ -177,8 +177,19 @@ def check_images_against_backgrounds(images: np.ndarray, backgrounds: np.ndarray
 # --- sensor layouts that cannot be right, or say little ----------------------------------------------
 
 # Sensors whose bodies overlap by more than this (m) on every axis are an error; less is taken for a
-# calibration error of sensors mounted side by side.
+# calibration error of sensors mounted side by side. Poses declared off (``sensors.pose_sigma_*``) widen it:
+# ``body_overlap_margin``.
 BODY_OVERLAP_MARGIN = 0.5e-3
+
+
+def body_overlap_margin(pose_tolerance: float) -> float:
+    """How far (m) each DIGIT body is shrunk before the overlap test, for sensor poses whose relative error
+    may reach ``pose_tolerance`` (m; ``SensorSettings.pair_distance_tolerance``, two standard deviations of
+    two sensors' relative error at the gel): half of it, since both bodies shrink, and never less than
+    ``BODY_OVERLAP_MARGIN``. Two fingertips side by side, reported through a hand's kinematics, overlap
+    by a millimetre or two in about one scene in a hundred at 1.5 mm and 1.5 deg
+    (docs/real_sensors.md); a wrong pose file (a sensor given twice, a frame mixed up) by centimetres."""
+    return max(BODY_OVERLAP_MARGIN, 0.5 * float(pose_tolerance))
 
 
 class UnderdeterminedPoseWarning(UserWarning):
@@ -187,7 +198,7 @@ class UnderdeterminedPoseWarning(UserWarning):
 
 def check_bodies_apart(T_world_sensors: np.ndarray, margin: float = BODY_OVERLAP_MARGIN) -> None:
     """InputError naming the first two sensors (L, 4, 4) whose DIGIT bodies (``sensor.bodies_overlap``, each
-    shrunk by ``margin``) overlap: two units cannot be in one place."""
+    shrunk by ``margin``, see ``body_overlap_margin``) overlap: two units cannot be in one place."""
     T = np.asarray(T_world_sensors, dtype=np.float64)
     centres = T[:, :3, 3] + T[:, :3, :3] @ BOX_CENTER
     # Boxes whose bounding spheres are apart need no 15-axis test.
