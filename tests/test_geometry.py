@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -185,3 +186,20 @@ def test_covariances_to_rotations_degenerate_cases():
     assert np.all(g.is_rotation(R, atol=1e-10))
     best = np.array([np.trace(naive_kabsch_rotation(h).T @ h) for h in H])
     np.testing.assert_allclose(np.einsum("nab,nab->n", R, H), best, atol=1e-10)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_matrix_to_nearest_rotation_beats_every_nearby_rotation(seed):
+    """The naive reference: no rotation near the answer (random turns up to 0.01 rad) is nearer the matrix in
+    the Frobenius norm; a rotation is its own answer; a matrix of determinant < 0 still gets a rotation."""
+    rng = np.random.default_rng(seed)
+    R = g.random_rotations(4, rng)
+    M = R + rng.normal(0.0, 3e-3, R.shape)
+    nearest = g.matrix_to_nearest_rotation(M)
+    assert np.all(g.is_rotation(nearest, atol=1e-12))
+    turns = g.rotvec_to_rotmat(rng.normal(0.0, 0.005, (200, 3)))
+    for m, q in zip(M, nearest):
+        assert np.linalg.norm(m - q) <= np.linalg.norm(m[None] - q[None] @ turns, axis=(1, 2)).min()
+    np.testing.assert_allclose(g.matrix_to_nearest_rotation(R), R, atol=1e-12)
+    assert np.all(g.is_rotation(g.matrix_to_nearest_rotation(R * [1.0, 1.0, -1.0]), atol=1e-12))
+

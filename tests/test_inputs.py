@@ -10,7 +10,7 @@ import trimesh
 
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
-from tactile6d.core.geometry import make_pose, random_rotations, text_to_poses
+from tactile6d.core.geometry import is_rotation, make_pose, random_rotations, rotation_angle, text_to_poses
 from tactile6d.core.settings import SensorSettings
 from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
 from tactile6d.data.hdf5 import read_scene_dir, read_tactile_image
@@ -116,6 +116,23 @@ def test_a_rotation_axis_that_is_not_unit_length_names_the_line():
     text_to_poses("0 0 0 0 1.0009 0 1.0\n")  # within 1e-3: rounding in someone's file
     with pytest.raises(ValueError, match="line 1: zero rotation axis with a non-zero angle"):
         text_to_poses("0 0 0 0 0 0 1.0\n")
+
+
+def test_a_rounded_rotation_is_taken_for_the_nearest_rotation_and_a_wrong_one_refused():
+    T = make_pose(random_rotations(1, np.random.default_rng(3))[0], [0.1, 0.0, 0.2])
+    rounded = np.round(T, 4)  # a calibration file with 4 decimals: R^T R about 1e-4 off the identity
+    assert not is_rotation(rounded[:3, :3], atol=inputs.EXACT_ROTATION)
+    given = rounded.copy()
+    checked = inputs.check_sensor_poses(given)
+    np.testing.assert_array_equal(given, rounded)  # the caller's array is left as it was
+    assert is_rotation(checked[0, :3, :3], atol=1e-12)
+    assert rotation_angle(checked[0, :3, :3], T[:3, :3]) < 1e-3
+    np.testing.assert_array_equal(inputs.check_sensor_poses(T)[0], T)  # an exact rotation is kept bit for bit
+    scaled = T.copy()
+    scaled[:3, :3] *= 1.01
+    with pytest.raises(InputError, match=r"sensor pose 0: the upper-left 3x3 block is not a rotation matrix "
+                                         r"\(R\^T R is 0.02 off the identity"):
+        inputs.check_sensor_poses(scaled)
 
 
 def test_every_poses_file_of_the_papers_triplets_passes(data_dir):

@@ -189,6 +189,15 @@ def is_rotation(R: np.ndarray, atol: float = 1e-6) -> np.ndarray:
     return ortho & (np.abs(np.linalg.det(R) - 1.0) < atol) & np.all(np.isfinite(R), axis=(-1, -2))
 
 
+def matrix_to_nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) -> (..., 3, 3): the rotation nearest M in the Frobenius norm (the special orthogonal
+    Procrustes problem): ``U diag(1, 1, det(U V^T)) V^T`` of M's SVD ``U S V^T``. For a rotation rounded or
+    accumulated in low precision, the rotation it was meant to be."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    d = np.sign(np.linalg.det(U @ Vt))
+    return (U * np.stack([np.ones_like(d), np.ones_like(d), d], axis=-1)[..., None, :]) @ Vt
+
+
 def symmetric_to_eigen(B: np.ndarray, max_sweeps: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Eigen-decomposition of symmetric 3 x 3 matrices by cyclic Jacobi rotations: B (N, 3, 3) ->
     (eigenvalues (N, 3), eigenvectors (N, 3, 3) as columns), unsorted, B ~= V diag(w) V^T.

@@ -15,13 +15,22 @@ import warnings
 import numpy as np
 
 from tactile6d.core.errors import InputError
-from tactile6d.core.geometry import is_rotation
+from tactile6d.core.geometry import is_rotation, matrix_to_nearest_rotation
 from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap
 from tactile6d.data.hdf5 import tactile_shape_problem
 
 
+# How far a sensor pose's rotation block may be from a rotation (largest entry of |R^T R - I|, and |det R - 1|)
+# and still be taken for one: a matrix written with 4 decimals, or composed in float32 along a kinematic chain.
+# Beyond ``EXACT_ROTATION`` it is replaced by the nearest rotation, which turns it by about this much at
+# most (1e-3 rad, 0.06 deg: a fortieth of a hand's kinematic error).
+ROTATION_TOLERANCE = 1e-3
+EXACT_ROTATION = 1e-5
+
+
 def check_sensor_poses(T_world_sensors) -> np.ndarray:
-    """Sensor poses -> (L, 4, 4) float64, L >= 1; InputError naming the first bad one."""
+    """Sensor poses -> (L, 4, 4) float64, L >= 1; InputError naming the first bad one. A rotation block within
+    ``ROTATION_TOLERANCE`` of a rotation is replaced by the nearest rotation (in the copy returned)."""
     T = np.asarray(T_world_sensors, dtype=np.float64)
     if T.ndim == 2 and T.shape == (4, 4):
         T = T[None]
@@ -30,8 +39,17 @@ def check_sensor_poses(T_world_sensors) -> np.ndarray:
     for i, pose in enumerate(T):
         if not np.all(np.isfinite(pose)):
             raise InputError(f"sensor pose {i} has NaN or infinite entries")
-        if not is_rotation(pose[:3, :3], atol=1e-5):
-            raise InputError(f"sensor pose {i}: the upper-left 3x3 block is not a rotation matrix")
+        R = pose[:3, :3]
+        if is_rotation(R, atol=EXACT_ROTATION):
+            pass
+        elif is_rotation(R, atol=ROTATION_TOLERANCE):
+            T = T.copy()  # never the caller's array
+            T[i, :3, :3] = matrix_to_nearest_rotation(R)
+        else:
+            deviation = float(np.abs(R.T @ R - np.eye(3)).max())
+            raise InputError(f"sensor pose {i}: the upper-left 3x3 block is not a rotation matrix (R^T R is "
+                             f"{deviation:.2g} off the identity, det R = {np.linalg.det(R):.4g}; up to "
+                             f"{ROTATION_TOLERANCE:g} is taken for rounding)")
         if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
             raise InputError(f"sensor pose {i}: the last row must be 0 0 0 1, got {pose[3].tolist()}")
     return T
