@@ -1,4 +1,4 @@
-"""Stage rank on fabricated hypotheses: the same ranked poses from the stage in one process and on two worker processes."""
+"""Stage rank on fabricated hypotheses: the same ranked poses from the stage on one process and on two workers."""
 
 import subprocess
 import sys
