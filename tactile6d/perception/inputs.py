@@ -36,23 +36,23 @@ def check_sensor_poses(T_world_sensors) -> np.ndarray:
         T = T[None]
     if T.ndim != 3 or T.shape[1:] != (4, 4) or T.shape[0] < 1:
         raise InputError(f"sensor poses must be (L, 4, 4) with L >= 1, got shape {T.shape}")
+    checked = T  # becomes a copy, never the caller's array, when a rotation block is replaced
     for i, pose in enumerate(T):
         if not np.all(np.isfinite(pose)):
             raise InputError(f"sensor pose {i} has NaN or infinite entries")
         R = pose[:3, :3]
-        if is_rotation(R, atol=EXACT_ROTATION):
-            pass
-        elif is_rotation(R, atol=ROTATION_TOLERANCE):
-            T = T.copy()  # never the caller's array
-            T[i, :3, :3] = matrix_to_nearest_rotation(R)
-        else:
+        if not is_rotation(R, atol=ROTATION_TOLERANCE):
             deviation = float(np.abs(R.T @ R - np.eye(3)).max())
             raise InputError(f"sensor pose {i}: the upper-left 3x3 block is not a rotation matrix (R^T R is "
                              f"{deviation:.2g} off the identity, det R = {np.linalg.det(R):.4g}; up to "
                              f"{ROTATION_TOLERANCE:g} is taken for rounding)")
+        if not is_rotation(R, atol=EXACT_ROTATION):
+            if checked is T:
+                checked = T.copy()
+            checked[i, :3, :3] = matrix_to_nearest_rotation(R)
         if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
             raise InputError(f"sensor pose {i}: the last row must be 0 0 0 1, got {pose[3].tolist()}")
-    return T
+    return checked
 
 
 def check_images(images, n_sensors: int) -> np.ndarray:

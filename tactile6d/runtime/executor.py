@@ -164,6 +164,19 @@ def _interrupted() -> bool:
     return isinstance(sys.exc_info()[1], KeyboardInterrupt)
 
 
+def cancel_unless_interrupted(futures: Iterable[concurrent.futures.Future]) -> None:
+    """Cancel the futures not yet started, of a pool whose results are no longer wanted (a task raised,
+    the caller stopped early), unless a Ctrl-C or SIGTERM is unwinding: then the pool's shutdown
+    (``shutdown_pool``) cancels them in its manager thread instead. Cancelled from this thread while the
+    workers die of the same Ctrl-C, a future can still be on the manager's list when it marks the pool
+    broken: Python before 3.12 then fails to set its error (InvalidStateError, CPython gh-107219) and
+    prints the manager thread's traceback."""
+    if _interrupted():
+        return
+    for future in futures:
+        future.cancel()
+
+
 def terminate_workers(processes: Iterable[multiprocessing.process.BaseProcess],
                       grace_s: float = _TERMINATE_GRACE_S) -> None:
     """End these processes now: SIGTERM, then SIGKILL for any still there after ``grace_s`` seconds.
@@ -296,14 +309,7 @@ class LocalExecutor(Executor):
                     bar.update(1)
                     yield index[future], result
         finally:  # a task raised or the caller stopped early: drop what has not started
-            if not _interrupted():
-                for future in futures:
-                    future.cancel()
-            # While an interrupt unwinds, the pool's shutdown (``close``, ``shutdown_pool``) cancels them in
-            # its manager thread instead. Cancelled from this thread while the workers die of the same
-            # Ctrl-C, a future can still be on the manager's list when it marks the pool broken: Python
-            # before 3.12 then fails to set its error (InvalidStateError, CPython gh-107219) and prints
-            # the manager thread's traceback.
+            cancel_unless_interrupted(futures)
 
     def describe(self) -> str:
         return "this process" if self.workers == 1 else f"{self.workers} local worker processes"

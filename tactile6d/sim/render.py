@@ -670,8 +670,9 @@ class DigitRenderer:
                 if progress is not None:
                     progress(b - a)
         except BaseException:
-            for future in futures:
-                future.cancel()
+            from tactile6d.runtime.executor import cancel_unless_interrupted
+
+            cancel_unless_interrupted(futures)
             raise
         return images, masks
 
