@@ -89,9 +89,10 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
     T_world_sensors (L, 4, 4); images (L, 320, 240, 3) uint8 RGB; backgrounds (320, 240, 3) for every sensor
     or (L, 320, 240, 3) one per sensor; model: the patch calibration; select: the ``select`` settings (its
     ``align_light``); sensors: the ``sensors`` settings (bodies may overlap as far as their declared pose error
-    lets them, ``inputs.body_overlap_margin``). Malformed inputs (shapes, types, poses that are not poses, a grey background) raise
-    InputError as in the estimator, since nothing can be read from them; inputs the estimator refuses as
-    plausibly wrong are read all the same and their problems listed (``SceneReading.refused``).
+    lets them, ``inputs.body_overlap_margin``). Malformed inputs (shapes, types, poses that are not poses, a
+    grey background) raise InputError as in the estimator, since nothing can be read from them; inputs the
+    estimator refuses as plausibly wrong are read all the same and their problems listed
+    (``SceneReading.refused``).
     """
     T = inputs.check_sensor_poses(T_world_sensors)
     images = inputs.check_images(images, T.shape[0])
