@@ -361,7 +361,8 @@ def test_settings_from_the_config():
 
 @pytest.mark.parametrize("key,value", [("hypotheses", 0), ("evidence_frames", 0), ("refine_iterations", 0),
                                        ("threads", 0), ("max_residual", -0.001), ("max_agreement", -1.0),
-                                       ("penetration_margin", -0.001), ("redetect_every", -1), ("light_every", -1)])
+                                       ("penetration_margin", -0.001), ("redetect_every", -1), ("light_every", -1),
+                                       ("read_ahead", -1)])
 def test_bad_settings_are_refused(key, value):
     with pytest.raises(ConfigError, match=key):
         TrackSettings.from_cfg(compose_config([f"track.{key}={value}"]).track)
@@ -373,3 +374,70 @@ def test_a_tracker_needs_the_refinement(world, estimator):
         Tracker(unrefined)
     with Tracker(estimator) as tracker:  # without settings: conf/'s
         assert tracker.settings == TrackSettings.from_cfg(compose_config().track)
+
+
+def same_answers(a: list[TrackedFrame], b: list[TrackedFrame]) -> None:
+    """Every field of two runs' answers equal, bit for bit, but the seconds."""
+    assert len(a) == len(b)
+    for k, (x, y) in enumerate(zip(a, b)):
+        for name in TrackedFrame.__dataclass_fields__:
+            if name in ("seconds", "estimate"):
+                continue
+            np.testing.assert_array_equal(getattr(x, name), getattr(y, name), err_msg=f"frame {k}: {name}")
+        assert (x.estimate is None) == (y.estimate is None), k
+        if x.estimate is not None:
+            np.testing.assert_array_equal(x.estimate.poses, y.estimate.poses, err_msg=str(k))
+
+
+def a_stream(world, n_frames=20):
+    """Sequence 0 under drifted LEDs (so that light fits change the images), sensor 2 left out on frames 9-11
+    (L = 2 there: the light is fitted anew), as (T_world_sensors, images) frames."""
+    seqs = world["seqs"]
+    images = np.clip(seqs.images[0, :n_frames] * np.array([1.07, 0.94, 1.03]), 0, 255).astype(np.uint8)
+    T = seqs.T_world_sensors[0, :n_frames]
+    return [(T[k, :2], images[k, :2]) if 9 <= k <= 11 else (T[k], images[k]) for k in range(n_frames)]
+
+
+@pytest.mark.parametrize("read_ahead", [2, 0])
+def test_tracking_a_stream_gives_the_answers_of_update_frame_by_frame(world, estimator, read_ahead):
+    """Tracker.track reads each frame's patches in reader processes while the frame before is followed: the same
+    answers as update(), bit for bit, through periodic re-detections (which refit the light and make the frame
+    after's reading, made under the old light, be read again), light fits every few frames and a change of L."""
+    stream = a_stream(world)
+    settings = track_settings(redetect_every=4, light_every=3, read_ahead=read_ahead)
+    with Tracker(estimator, settings) as tracker:
+        one_by_one = [tracker.update(T, images) for T, images in stream]
+    with Tracker(estimator, settings) as tracker:
+        tracked = list(tracker.track(iter(stream)))
+        assert (tracker._reader is not None) == (read_ahead > 0)
+    assert tracker._reader is None  # its own reader closed with it
+    modes = [f.mode for f in one_by_one]
+    assert modes.count("redetect") >= 4 and modes.count("update") >= 10, modes
+    same_answers(tracked, one_by_one)
+
+
+def test_a_reader_serves_several_trackers_and_frames_may_carry_their_backgrounds(world, estimator):
+    from tactile6d.perception.patch_reader import PatchReader
+
+    stream = a_stream(world, 8)
+    settings = track_settings(read_ahead=0)
+    with Tracker(estimator, settings) as tracker:
+        expected = [tracker.update(T, images, NO_CONTACT) for T, images in stream]
+    with PatchReader(1) as reader:
+        for _ in range(2):
+            with Tracker(estimator, settings, reader) as tracker:
+                same_answers(list(tracker.track((T, images, NO_CONTACT) for T, images in stream)), expected)
+        assert reader._pool is not None  # the caller's reader stays open for the next tracker
+
+
+def test_a_bad_frame_in_a_stream_is_raised_after_the_frame_before_is_answered(world, estimator):
+    stream = a_stream(world, 4)
+    bad = (stream[3][0], stream[3][1][..., 0])  # grayscale planes, not RGB images
+    answers = []
+    with Tracker(estimator, track_settings()) as tracker:
+        with pytest.raises(InputError):
+            for answer in tracker.track(stream[:3] + [bad]):
+                answers.append(answer)
+        assert len(answers) == 3
+        with pytest.raises(InputError, match="frames"):
+            next(tracker.track([stream[0][0]]))

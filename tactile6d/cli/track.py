@@ -23,6 +23,10 @@ score the confidence, t in mm, time the frame's seconds); ``--out-bag PATH`` wri
 
 A summary goes to stderr at the end (frames, re-detections, held and ambiguous frames, median seconds per
 updated frame).
+
+The frames go to ``Tracker.track``: ``track.read_ahead`` worker processes read the next frame's contact
+patches while this process follows the current one (the same poses as frame-by-frame updates), so a frame's
+line is written when the next frame has been read from the input.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import argparse
 import json
 import sys
 import warnings
+from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -137,8 +142,15 @@ def main(argv: list[str]) -> int:
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
         warnings.simplefilter("once", UnderdeterminedPoseWarning)
-        for index, stamp, T, images, frame_backgrounds in frames_of(args):
-            answer = tracker.update(T, images, None if background is not None else frame_backgrounds)
+        read = deque()  # (index, stamp) of the frames handed to the tracker and not yet answered
+
+        def stream():
+            for index, stamp, T, images, frame_backgrounds in frames_of(args):
+                read.append((index, stamp))
+                yield T, images, None if background is not None else frame_backgrounds
+
+        for answer in tracker.track(stream()):
+            index, stamp = read.popleft()
             if args.json:
                 write(json.dumps({"frame": index, "stamp": stamp, **answer.to_dict()}), sys.stdout)
             else:

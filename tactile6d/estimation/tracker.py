@@ -8,14 +8,15 @@ rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose 
   equally well (``Estimate.distinct``: a box touched on its large faces has several); up to ``hypotheses``
   of them are followed, each with its *evidence*, a running mean of its score over about
   ``evidence_frames`` frames. The one with the least evidence is reported.
-- **update** (every frame): the sensors' contacts are read from the new images (their contact patches,
-  the images read on ``threads`` threads), and each hypothesis's last pose (the reported one's also moved
-  on by its last motion: constant velocity) is refined against them as the single-shot ranking refines
-  its candidates (``refine.refine_poses_and_sensors``: each sensor's small pose error estimated beside the
-  object's pose, ``sensors.pose_sigma_mm``/``_deg``) and scored as the ranking scores (surface fit +
-  penetration beyond the sensor poses' allowance + the corrections' cost + render-and-compare). Only the
-  sensors whose image shows contact are fitted; every sensor's image is compared, so a pose that presses
-  a sensor whose image shows none pays for it.
+- **update** (every frame): the sensors' contacts are read from the new images (their contact patches:
+  on ``threads`` threads in ``update``; in ``track``, which takes a stream of frames, on ``read_ahead``
+  worker processes while the frame before is followed, the same answers sooner), and each hypothesis's
+  last pose (the reported one's also moved on by its last motion: constant velocity) is refined against
+  them as the single-shot ranking refines its candidates (``refine.refine_poses_and_sensors``: each
+  sensor's small pose error estimated beside the object's pose, ``sensors.pose_sigma_mm``/``_deg``) and
+  scored as the ranking scores (surface fit + penetration beyond the sensor poses' allowance + the
+  corrections' cost + render-and-compare). Only the sensors whose image shows contact are fitted; every
+  sensor's image is compared, so a pose that presses a sensor whose image shows none pays for it.
 - **fit check**: a hypothesis whose refined pose does not fit the contacts (mean point-to-plane residual
   over ``max_residual``), disagrees with the images (render-and-compare cost over ``max_agreement``) or
   penetrates a sensor deeper than the limit (the larger of the ranking's allowance and the last
@@ -48,7 +49,7 @@ Settings: config section ``track`` (conf/track/default.yaml); the estimator's ow
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -66,6 +67,8 @@ from tactile6d.perception import photometric
 from tactile6d.perception.contact_patch import image_to_patch
 from tactile6d.perception.contacts import Contacts, patches_to_contacts
 from tactile6d.perception.encode import sensor_background
+from tactile6d.perception.patch_reader import PatchReader
+from tactile6d.runtime.executor import cancel_unless_interrupted
 
 MODES = ("redetect", "update", "hold")
 
@@ -84,11 +87,14 @@ class TrackSettings:
     redetect_every: int
     light_every: int
     threads: int
+    read_ahead: int
 
     def __post_init__(self) -> None:
         if min(self.refine_iterations, self.threads, self.hypotheses, self.evidence_frames) < 1:
             raise ConfigError(f"track.refine_iterations, threads, hypotheses and evidence_frames must be >= 1, got "
                               f"{self.refine_iterations}, {self.threads}, {self.hypotheses}, {self.evidence_frames}")
+        if self.read_ahead < 0:
+            raise ConfigError(f"track.read_ahead must be >= 0 (0: no reader processes), got {self.read_ahead}")
         if min(self.max_residual, self.max_agreement, self.penetration_margin) < 0:
             raise ConfigError("track.max_residual, max_agreement and penetration_margin must be >= 0")
         if self.redetect_every < 0 or self.light_every < 0:
@@ -173,17 +179,22 @@ class Tracker:
     """Follows one object's pose over frames (module docstring).
 
     estimator: the object's ``Estimator`` (its settings give the refinement and the score); settings:
-    the ``track`` section (``TrackSettings``; default: conf/'s). Feed frames in time order to ``update``;
-    ``reset`` forgets the track (the next frame is re-detected). Holds a thread pool: use it as a
-    context manager or call ``close``.
+    the ``track`` section (``TrackSettings``; default: conf/'s); reader: the ``PatchReader`` of ``track``
+    (default: its own of ``read_ahead`` processes, started by the first ``track``). Feed frames in time order
+    to ``update``, or a stream of them to ``track``; ``reset`` forgets the track (the next frame is
+    re-detected). Holds a thread pool and its reader: use it as a context manager or call ``close`` (a
+    reader given stays open).
     """
 
-    def __init__(self, estimator: Estimator, settings: TrackSettings | None = None):
+    def __init__(self, estimator: Estimator, settings: TrackSettings | None = None,
+                 reader: PatchReader | None = None):
         if not estimator.settings.rank.refine:
             raise InputError("tracking refines the last pose: it needs rank.refine (and the object's surface)")
         self.estimator = estimator
         self.settings = settings if settings is not None else TrackSettings.from_cfg(compose_config()["track"])
         self._pool = ThreadPoolExecutor(self.settings.threads) if self.settings.threads > 1 else None
+        # track()'s reader processes: the caller's (who closes it), else the tracker's own, started by track().
+        self._reader, self._own_reader = reader, False
         self.reset()
 
     @classmethod
@@ -216,6 +227,9 @@ class Tracker:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+        if self._own_reader and self._reader is not None:
+            self._reader.close()
+            self._reader, self._own_reader = None, False
 
     def __enter__(self) -> Tracker:
         return self
@@ -228,21 +242,86 @@ class Tracker:
         change from frame to frame. backgrounds: the sensors' no-contact images for this frame, as for
         ``Estimator.estimate``; redetect: estimate this frame from scratch. -> ``TrackedFrame``."""
         start = time.perf_counter()
+        T, images, per_sensor = self.estimator._checked_scene(T_world_sensors, images, backgrounds)
+        return self._step(_Frame(T, images, per_sensor, backgrounds, redetect), start)
+
+    def track(self, frames: Iterable[tuple]) -> Iterator[TrackedFrame]:
+        """``update`` over a stream of frames, each ``(T_world_sensors, images)`` or ``(T_world_sensors,
+        images, backgrounds)``, in order -> one ``TrackedFrame`` per frame, the same answers as ``update``
+        frame by frame, bit for bit.
+
+        Faster where a core is free: each frame's contact patches are read on the reader processes
+        (``track.read_ahead`` of them, or the ``reader`` given to the tracker) while the frame before is
+        followed in this process. Its cost: a frame's answer comes when the next frame has arrived (or the
+        stream has ended), and a frame's ``seconds`` run from its turn, its patches read by then or not.
+        A reading made under a light the frame before changed (its re-detection or light fit) is read
+        again. With ``read_ahead`` 0 and no reader, or without patch contacts, it is ``update`` in a loop.
+        An input error in a frame is raised after the frame before it has been answered.
+        """
+        reader = self._track_reader()
+        if reader is None:
+            for item in frames:
+                yield self.update(*_frame_arguments(item))
+            return
+        waiting: _Frame | None = None
+        for item in frames:
+            try:
+                T_world_sensors, images, backgrounds = _frame_arguments(item)
+                T, images, per_sensor = self.estimator._checked_scene(T_world_sensors, images, backgrounds)
+            except Exception:
+                if waiting is not None:
+                    yield self._step(waiting, time.perf_counter())
+                raise
+            frame = _Frame(T, images, per_sensor, backgrounds, False)
+            frame.ahead = self._submit_reading(reader, frame)
+            if waiting is not None:
+                yield self._step(waiting, time.perf_counter())
+            waiting = frame
+        if waiting is not None:
+            yield self._step(waiting, time.perf_counter())
+
+    def _track_reader(self) -> PatchReader | None:
+        """The reader processes of ``track`` (started at its first call), or None where it reads in turn."""
+        if not self.estimator.settings.select.reads_patches:
+            return None
+        if self._reader is None and self.settings.read_ahead > 0:
+            self._reader, self._own_reader = PatchReader(self.settings.read_ahead), True
+        return self._reader
+
+    def _submit_reading(self, reader: PatchReader, frame: _Frame) -> _Reading:
+        """The frame's patches submitted to the reader, under the light as it stands now."""
+        n = len(frame.T)
+        light = self._light if self._light is not None and len(self._light) == n else None
+        fits = light if light is not None else [None] * n
+        no_contacts = [sensor_background(frame.per_sensor, i) for i in range(n)]
+        return _Reading(self._light, reader.submit(frame.images, no_contacts, fits, self.estimator.patch_model))
+
+    def _step(self, frame: _Frame, start: float) -> TrackedFrame:
+        """``update`` of a checked frame (its patches perhaps submitted to ``track``'s reader)."""
         est = self.estimator
-        T, images, per_sensor = est._checked_scene(T_world_sensors, images, backgrounds)
+        T, raw, per_sensor, backgrounds = frame.T, frame.images, frame.per_sensor, frame.backgrounds
         self._frames_since_redetect += 1
         self._frames_since_light += 1
-        self._requested = self._requested or redetect  # a request on a frame without contact waits for one
+        self._requested = self._requested or frame.redetect  # a request on a frame without contact waits for one
         reason = self._redetect_reason()
         if reason == "start":
-            return self._redetect(T, images, backgrounds, reason, start)
-        raw, fresh_light = images, self._light_is_stale(len(T))
+            if frame.ahead is not None:
+                cancel_unless_interrupted(frame.ahead.futures)
+            return self._redetect(T, raw, backgrounds, reason, start)
+        fresh_light = self._light_is_stale(len(T))
+        images = raw
         if fresh_light:
-            images, self._light = est._aligned(images, per_sensor)
+            images, self._light = est._aligned(raw, per_sensor)
             self._frames_since_light = 0
+        if frame.ahead is not None and (fresh_light or frame.ahead.light is not self._light):
+            cancel_unless_interrupted(frame.ahead.futures)  # read under another light: read it again
+            frame.ahead = None if fresh_light else self._submit_reading(self._reader, frame)
+        if frame.ahead is not None:
+            contacts = patches_to_contacts(PatchReader.results(frame.ahead.futures), T)
         else:
-            images = self._apply_light(images)
-        contacts = self._read_contacts(T, images, per_sensor)
+            if not fresh_light:
+                images = self._apply_light(raw)
+            contacts = self._read_contacts(T, images, per_sensor)
         touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
         if not touching.any():
             return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
@@ -463,3 +542,34 @@ def _select_sensors(contacts: Contacts, on: np.ndarray) -> Contacts:
     return Contacts(contacts.points[on], contacts.normals[on], contacts.from_patch[on], pick(contacts.masks),
                     pick(contacts.depths))
 
+
+@dataclass
+class _Reading:
+    """A frame's patches submitted to ``track``'s reader: the light fits they are read under (the tracker's
+    ``_light`` then, by identity) and the futures of the patches."""
+
+    light: list[photometric.LightFit] | None
+    futures: list
+
+
+@dataclass
+class _Frame:
+    """A checked frame (``Estimator._checked_scene``): sensor poses (L, 4, 4), images as given, no-contact
+    images per sensor (or None), the call's backgrounds, a re-detection request, and its patches' reading
+    when ``track`` submitted one."""
+
+    T: np.ndarray
+    images: np.ndarray
+    per_sensor: np.ndarray | None
+    backgrounds: object
+    redetect: bool
+    ahead: _Reading | None = None
+
+
+def _frame_arguments(item: tuple) -> tuple:
+    """``(T_world_sensors, images, backgrounds)`` of one of ``Tracker.track``'s frames (backgrounds None if absent)."""
+    if not isinstance(item, (tuple, list)) or len(item) not in (2, 3):
+        raise InputError("Tracker.track takes frames (T_world_sensors, images) or (T_world_sensors, images, "
+                         f"backgrounds), got {type(item).__name__}"
+                         + (f" of length {len(item)}" if isinstance(item, (tuple, list)) else ""))
+    return (item[0], item[1], item[2] if len(item) == 3 else None)

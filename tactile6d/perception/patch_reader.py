@@ -1,0 +1,79 @@
+"""Contact patches read in worker processes, so that a caller can go on working while they are read.
+
+Reading one image's contact patch (``contact_patch.image_to_patch``) takes about 10 ms on one core of the
+2-core machine, and threads of one process barely share it: two threads read a frame's images 1.15-1.27
+times as fast as one (measured 2026-11-29, the tracking sequences' images), the rest waits on the GIL.
+``PatchReader`` reads them in ``processes`` spawn worker processes instead (``runtime.executor.worker_context``:
+Ctrl-C ends them at once), one task per image, each brought to its no-contact image's light first. The
+tracker submits a frame's images there and follows the frame before meanwhile (``Tracker.track``).
+
+A patch read in a worker is the patch ``image_to_patch`` reads in this process, bit for bit: the same code
+on the same inputs (``tests/test_patch_reader.py``).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+from collections.abc import Sequence
+
+import numpy as np
+
+from tactile6d.core.errors import ConfigError
+from tactile6d.perception import photometric
+from tactile6d.perception.contact_patch import ContactPatch, PatchModel, image_to_patch
+from tactile6d.runtime.executor import cancel_unless_interrupted, shutdown_pool, worker_context
+
+
+def read_patch(image: np.ndarray, no_contact: np.ndarray, fit: photometric.LightFit | None,
+               model: PatchModel) -> ContactPatch:
+    """One image's contact patch: image (320, 240, 3) uint8 RGB, brought to its no-contact image's light by
+    ``fit`` where the fit was applied (None: read as given), then read against no_contact (320, 240, 3)."""
+    if fit is not None and fit.applied:
+        image = photometric.apply_light(image, fit)
+    return image_to_patch(image, no_contact, model)
+
+
+class PatchReader:
+    """``processes`` worker processes that read contact patches; a context manager (``close``).
+
+    The pool starts with the first images submitted (each worker imports the reading code: about a second,
+    while the caller goes on) and is reused until ``close``; one reader may serve several trackers in turn.
+    """
+
+    def __init__(self, processes: int):
+        if isinstance(processes, bool) or not isinstance(processes, int) or processes < 1:
+            raise ConfigError(f"a patch reader needs a whole number of processes >= 1, got {processes!r}")
+        self.processes = processes
+        self._pool: concurrent.futures.ProcessPoolExecutor | None = None
+
+    def submit(self, images: np.ndarray, no_contacts: Sequence[np.ndarray],
+               fits: Sequence[photometric.LightFit | None], model: PatchModel) -> list[concurrent.futures.Future]:
+        """Start reading images (L, 320, 240, 3) uint8 RGB, each against its no-contact image and under its
+        light fit (``read_patch``) -> L futures of ``ContactPatch``, in sensor order."""
+        if not len(images) == len(no_contacts) == len(fits):
+            raise ValueError(f"{len(images)} images, {len(no_contacts)} no-contact images and {len(fits)} light fits")
+        if self._pool is None:
+            self._pool = concurrent.futures.ProcessPoolExecutor(self.processes, mp_context=worker_context())
+        return [self._pool.submit(read_patch, image, nc, fit, model)
+                for image, nc, fit in zip(images, no_contacts, fits)]
+
+    @staticmethod
+    def results(futures: Sequence[concurrent.futures.Future]) -> list[ContactPatch]:
+        """The patches of ``submit``'s futures, waited for in order; a worker's error is raised here (the
+        other futures are then cancelled)."""
+        try:
+            return [f.result() for f in futures]
+        except BaseException:
+            cancel_unless_interrupted(futures)
+            raise
+
+    def close(self) -> None:
+        if self._pool is not None:
+            pool, self._pool = self._pool, None
+            shutdown_pool(pool)
+
+    def __enter__(self) -> PatchReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
