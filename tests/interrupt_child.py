@@ -7,6 +7,8 @@ never reached, ``DIR/out.json`` written atomically.
 dataset slowed to 30 s; ``DIR/writing`` is created when the first one starts.
 ``python tests/interrupt_child.py render DIR``: ``DigitRenderer.render_many`` of 4000 poses on a cube over
 2 worker processes (tens of seconds); ``DIR/rendering`` is created first.
+``python tests/interrupt_child.py read DIR``: a frame's three contact patches read over and over by a
+``PatchReader`` of 2 worker processes, as ``Tracker.track`` reads them; ``DIR/reading`` is created first.
 All run under ``exit_on_error``, as a stage does.
 """
 
@@ -85,10 +87,27 @@ def render_many(directory: str) -> int:
     return 0
 
 
+def read_patches(directory: str) -> int:
+    from tactile6d.core import sensor
+    from tactile6d.perception.contact_patch import PatchModel
+    from tactile6d.perception.patch_reader import PatchReader
+
+    rng = np.random.default_rng(0)
+    no_contact = np.full((sensor.IMAGE_HEIGHT, sensor.IMAGE_WIDTH, 3), (120, 128, 124), np.uint8)
+    images = np.clip(no_contact + rng.normal(0, 2, (3, *no_contact.shape)), 0, 255).astype(np.uint8)
+    model = PatchModel(coefficients=np.zeros((56, 3)))  # never reached: these images show no contact
+    Path(directory, "reading").touch()
+    with PatchReader(2) as reader:
+        while True:
+            reader.results(reader.submit(images, [no_contact] * 3, [None] * 3, model))
+
+
 if __name__ == "__main__":
     mode, directory = sys.argv[1], sys.argv[2]
     if mode == "map":
         sys.exit(exit_on_error(lambda: map_tasks(directory, sys.argv[3])))
     if mode == "render":
         sys.exit(exit_on_error(lambda: render_many(directory)))
+    if mode == "read":
+        sys.exit(exit_on_error(lambda: read_patches(directory)))
     sys.exit(exit_on_error(lambda: write_slowly(directory)))

@@ -134,20 +134,32 @@ def spawn_workers(pgid: int) -> list[int]:
     return found
 
 
-@pytest.mark.slow
-def test_an_interrupted_render_many_stops_with_its_workers(tmp_path):
-    """The renderer's own pool (``DigitRenderer.render_many`` with 2 workers) on Ctrl-C."""
-    proc = start("render", tmp_path)
+def interrupt_busy_workers(mode: str, directory, what: str) -> None:
+    """Start the child in ``mode`` (a pool of 2 spawn workers at work), Ctrl-C its group once the workers
+    are past their start-up: every process gone, status 130, one line."""
+    proc = start(mode, directory)
     wait_for(lambda: len(spawn_workers(proc.pid)) >= 2, START_S, proc)
     workers = spawn_workers(proc.pid)
-    time.sleep(3.0)  # past their start-up (imports, the renderer), into the rendering
-    assert proc.poll() is None  # still rendering
+    time.sleep(3.0)  # past their start-up (imports), into the work
+    assert proc.poll() is None  # still at work
     seconds, stderr = interrupt(proc, signal.SIGINT, whole_group=True)
-    print(f"render_many, SIGINT to the group: all gone after {seconds:.2f} s")
+    print(f"{what}, SIGINT to the group: all gone after {seconds:.2f} s")
     assert proc.returncode == 130
     assert not any(alive(pid) for pid in [proc.pid, *workers])
     assert stderr.strip().splitlines() == [
         "interrupted: interrupt_child.py stopped by SIGINT before it finished; run it again"]
+
+
+@pytest.mark.slow
+def test_an_interrupted_render_many_stops_with_its_workers(tmp_path):
+    """The renderer's own pool (``DigitRenderer.render_many`` with 2 workers) on Ctrl-C."""
+    interrupt_busy_workers("render", tmp_path, "render_many")
+
+
+@pytest.mark.slow
+def test_an_interrupted_patch_reader_stops_with_its_workers(tmp_path):
+    """The tracker's reader processes (``PatchReader``, 2 workers, reading frame after frame) on Ctrl-C."""
+    interrupt_busy_workers("read", tmp_path, "PatchReader")
 
 
 # --- exit_on_error and shutdown_pool, in this process -------------------------------------------------
