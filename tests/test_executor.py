@@ -2,9 +2,11 @@
 order; the initializer and the per-process memo run once per process; render_database and ablation
 write the same artifacts through either."""
 
+import concurrent.futures
 import hashlib
 import json
 import os
+import struct
 
 import numpy as np
 import pytest
@@ -127,6 +129,42 @@ def test_process_cache_slots_keep_one_entry(fresh_process_state):
     assert ex.process_cache("a", lambda: built.append("a") or "A3", slot="s") == "A3"  # a was dropped
     assert ex.process_cache("c", lambda: "C") == "C" and ex.process_cache("c", lambda: "C2") == "C"  # no slot
     assert built == ["a", "b", "a"]
+
+
+def torn_pool() -> tuple:
+    """A one-worker pool whose manager thread reads a torn result: what a worker killed mid-send leaves (a
+    message header announcing 1 MB, one byte of it). -> (the pool, its manager thread)."""
+    pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=ex.worker_context())
+    assert pool.submit(abs, -1).result() == 1  # the worker and the manager thread are up
+    manager = pool._executor_manager_thread
+    os.write(manager.result_queue._writer.fileno(), struct.pack("!i", 1 << 20) + b"\x80")
+    manager.join(0.5)
+    assert manager.is_alive()  # stuck in the read
+    return pool, manager
+
+
+def test_a_pool_thread_left_reading_a_torn_result_is_freed():
+    """free_torn_result completes the torn message with zeros: the manager thread marks the pool broken
+    and ends."""
+    pool, manager = torn_pool()
+    try:
+        ex.free_torn_result(manager)
+        assert not manager.is_alive()
+        with pytest.raises(concurrent.futures.process.BrokenProcessPool):
+            pool.submit(abs, -1).result()
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def test_a_pool_shut_down_under_ctrl_c_frees_a_torn_result():
+    """Under a Ctrl-C, shutdown_pool kills the workers and leaves no manager thread behind, even one
+    reading a torn result (the interpreter would wait for it at exit: the program would hang)."""
+    pool, manager = torn_pool()
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        ex.shutdown_pool(pool)
+    assert not manager.is_alive()
 
 
 def test_config_picks_the_executor_and_rejects_bad_values():

@@ -4,10 +4,7 @@ The images are presses rendered on superquadrics (as tests/test_contact_patch.py
 contact, read under their no-contact image's light and under a drifted light brought back by its fit.
 """
 
-import concurrent.futures
 import dataclasses
-import os
-import struct
 
 import numpy as np
 import pytest
@@ -16,8 +13,7 @@ from test_estimator import small_patch_model
 
 from tactile6d.core.errors import ConfigError, InputError
 from tactile6d.perception import contact_patch, photometric
-from tactile6d.perception.patch_reader import PatchReader, free_torn_result, read_patch
-from tactile6d.runtime.executor import worker_context
+from tactile6d.perception.patch_reader import PatchReader, read_patch
 from tactile6d.sim import perturb
 from tactile6d.sim.render import DigitRenderer
 
@@ -87,21 +83,3 @@ def test_one_no_contact_image_and_one_fit_per_image(frame):
     images, no_contact, model = frame
     with PatchReader(1) as reader, pytest.raises(ValueError, match="3 images, 2 no-contact images"):
         reader.submit(images, [no_contact] * 2, [None] * 3, model)
-
-
-def test_a_pool_thread_left_reading_a_torn_result_is_freed():
-    """What a worker killed mid-send leaves (a message header announcing 1 MB, one byte of it) keeps the pool's
-    manager thread reading; free_torn_result completes the message with zeros and the thread ends."""
-    pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=worker_context())
-    try:
-        assert pool.submit(abs, -1).result() == 1  # the worker and the manager thread are up
-        manager = pool._executor_manager_thread
-        os.write(manager.result_queue._writer.fileno(), struct.pack("!i", 1 << 20) + b"\x80")
-        manager.join(0.5)
-        assert manager.is_alive()  # stuck in the read
-        free_torn_result(manager)
-        assert not manager.is_alive()
-        with pytest.raises(concurrent.futures.process.BrokenProcessPool):
-            pool.submit(abs, -1).result()
-    finally:
-        pool.shutdown(wait=False, cancel_futures=True)

@@ -291,8 +291,7 @@ class Tracker:
     def _submit_reading(self, reader: PatchReader, frame: _Frame) -> _Reading:
         """The frame's patches submitted to the reader, under the light as it stands now."""
         n = len(frame.T)
-        light = self._light if self._light is not None and len(self._light) == n else None
-        fits = light if light is not None else [None] * n
+        fits = self._light_fits(n) or [None] * n
         no_contacts = [sensor_background(frame.per_sensor, i) for i in range(n)]
         return _Reading(self._light, reader.submit(frame.images, no_contacts, fits, self.estimator.patch_model))
 
@@ -355,12 +354,16 @@ class Tracker:
             return True
         return bool(self.settings.light_every) and self._frames_since_light >= self.settings.light_every
 
+    def _light_fits(self, n_sensors: int) -> list[photometric.LightFit] | None:
+        """The last light fits, where they are n_sensors' (a frame of another sensor count is read as given)."""
+        return self._light if self._light is not None and len(self._light) == n_sensors else None
+
     def _apply_light(self, images: np.ndarray) -> np.ndarray:
         """The images under their no-contact images' light, by the last fits where they were applied."""
-        if self._light is None or len(self._light) != len(images):
+        fits = self._light_fits(len(images))
+        if fits is None:
             return images
-        return np.stack([photometric.apply_light(im, fit) if fit.applied else im
-                         for im, fit in zip(images, self._light)])
+        return np.stack([photometric.apply_light(im, fit) if fit.applied else im for im, fit in zip(images, fits)])
 
     def _read_contacts(self, T: np.ndarray, images: np.ndarray, per_sensor: np.ndarray | None) -> Contacts:
         """The sensors' contacts (``Estimator.contacts``), the images' patches read in parallel."""

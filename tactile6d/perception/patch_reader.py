@@ -14,9 +14,6 @@ on the same inputs (``tests/test_patch_reader.py``).
 from __future__ import annotations
 
 import concurrent.futures
-import os
-import threading
-import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -34,34 +31,6 @@ def read_patch(image: np.ndarray, no_contact: np.ndarray, fit: photometric.Light
     if fit is not None and fit.applied:
         image = photometric.apply_light(image, fit)
     return image_to_patch(image, no_contact, model)
-
-
-def free_torn_result(manager: threading.Thread, timeout_s: float = 5.0) -> None:
-    """Let a process pool's manager thread end after its workers were killed (``shutdown_pool`` under
-    Ctrl-C) while one of them was sending a result.
-
-    A patch is hundreds of kB, more than a pipe holds, so a worker killed mid-send leaves the manager
-    thread reading the rest of a message that will never come, and the interpreter waits for that thread
-    at exit: the program hangs after its "interrupted" line (about one Ctrl-C in three of
-    ``tests/test_interrupt.py``'s reading loop). Zero bytes written into the result pipe complete the
-    message; it does not unpickle, the thread marks the pool broken and ends. Writes that find the pipe
-    full wait for the thread to read; after ``timeout_s`` seconds it gives up.
-    """
-    queue = getattr(manager, "result_queue", None)
-    if queue is None:
-        return
-    fd = queue._writer.fileno()
-    os.set_blocking(fd, False)
-    zeros = bytes(1 << 16)
-    deadline = time.monotonic() + timeout_s
-    while manager.is_alive() and time.monotonic() < deadline:
-        try:
-            os.write(fd, zeros)
-        except BlockingIOError:
-            manager.join(0.01)
-        except OSError:  # the pipe is closed: nothing left to free
-            return
-    manager.join(max(0.0, deadline - time.monotonic()))
 
 
 class PatchReader:
@@ -101,10 +70,7 @@ class PatchReader:
     def close(self) -> None:
         if self._pool is not None:
             pool, self._pool = self._pool, None
-            manager = getattr(pool, "_executor_manager_thread", None)  # private; shutdown_pool drops it
             shutdown_pool(pool)
-            if manager is not None and manager.is_alive():
-                free_torn_result(manager)
 
     def __enter__(self) -> PatchReader:
         return self

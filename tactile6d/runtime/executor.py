@@ -37,10 +37,12 @@ import hashlib
 import multiprocessing
 import multiprocessing.connection
 import multiprocessing.context
+import os
 import pickle
 import signal
 import sys
 import threading
+import time
 import weakref
 from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping
 from typing import Any, TypeVar
@@ -205,6 +207,35 @@ def end_worker_processes() -> None:
 on_interrupt(end_worker_processes)
 
 
+def free_torn_result(manager: threading.Thread, timeout_s: float = 5.0) -> None:
+    """Let a process pool's manager thread end after its workers were killed (``shutdown_pool`` under
+    Ctrl-C) while one of them was sending a result.
+
+    A result larger than a pipe holds (a contact patch, a rendered batch: hundreds of kB) leaves the
+    manager thread, when its worker is killed mid-send, reading the rest of a message that will never come,
+    and the interpreter waits for that thread at exit: the program hangs after its "interrupted" line
+    (about one Ctrl-C in three of ``tests/test_interrupt.py``'s patch-reading loop, before this). Zero bytes
+    written into the result pipe complete the message; it does not unpickle, the thread marks the pool
+    broken and ends. Writes that find the pipe full wait for the thread to read; after ``timeout_s``
+    seconds it gives up.
+    """
+    queue = getattr(manager, "result_queue", None)  # private, as the rest of the pool's insides here
+    if queue is None:
+        return
+    fd = queue._writer.fileno()
+    os.set_blocking(fd, False)
+    zeros = bytes(1 << 16)
+    deadline = time.monotonic() + timeout_s
+    while manager.is_alive() and time.monotonic() < deadline:
+        try:
+            os.write(fd, zeros)
+        except BlockingIOError:
+            manager.join(0.01)
+        except OSError:  # the pipe is closed: nothing left to free
+            return
+    manager.join(max(0.0, deadline - time.monotonic()))
+
+
 def shutdown_pool(pool: concurrent.futures.ProcessPoolExecutor) -> None:
     """Shut a process pool down, its queued tasks cancelled: after the running ones finish, or, while a
     Ctrl-C or SIGTERM is unwinding (called from a ``finally`` or an ``__exit__``), at once, its workers
@@ -223,6 +254,8 @@ def shutdown_pool(pool: concurrent.futures.ProcessPoolExecutor) -> None:
         # Let it see its workers gone and close its pipes now: left running, it races the interpreter's
         # exit hook of concurrent.futures, which then writes to a closed pipe (a traceback on stderr).
         manager.join(_TERMINATE_GRACE_S)
+        if manager.is_alive():  # still reading a result its worker was killed sending
+            free_torn_result(manager)
 
 
 # --- executors ---------------------------------------------------------------------------------------------
