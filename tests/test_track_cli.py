@@ -1,5 +1,6 @@
 """``tactile6d track`` on a few generated frames of prim_box (artifacts made by the real stages): numbered scene
-folders, a ROS 2 bag with TF or fixed sensor poses, the BOP CSV and pose bag it writes, and its errors.
+folders, a ROS 2 bag with TF or fixed sensor poses, the BOP CSV and pose bag it writes, and its errors; and
+``tactile6d bench track`` on the same frames.
 
 The baseline (``select.method=baseline``: every database point, no image read) keeps this fast and needs no
 autoencoder; what is checked here is the command's input and output, the tracker itself in test_tracker.py."""
@@ -15,7 +16,7 @@ from stages import prepare_object, sample_surface
 from tactile6d import cli
 from tactile6d.core import geometry as g
 from tactile6d.data import bop, layout, rosbag_io, sequence_dirs
-from tactile6d.data.hdf5 import read_artifact
+from tactile6d.data.hdf5 import read_artifact, write_artifact
 from tactile6d.data.object_artifacts import load_mesh
 from tactile6d.sim import sequences, surface_sampling
 from tactile6d.sim.render import DigitRenderer
@@ -66,6 +67,7 @@ def recording(artifacts, tmp_path_factory):
         "still_bag": rosbag_io.write_sequence_bag(root / "still", 50.0 + np.arange(3) / FPS, T[still], images[still],
                                                   TOPICS, FRAMES),
         "poses_file": root / "poses_sensors.txt",
+        "sequences": seqs,
     }
 
 
@@ -247,3 +249,17 @@ def test_a_bad_poses_file_is_one_error_line(capsys, artifacts, recording, tmp_pa
                          "--poses", str(path), "--artifacts", str(artifacts), *BASELINE)
     assert code == 2 and out == ""
     assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+
+
+def test_bench_track_times_the_sequences_artifact(capsys, artifacts, recording, tmp_path):
+    """``tactile6d bench track`` on a sequences artifact of one sequence (the recording's): a line for the
+    sequence, then the JSON figures over its F frames, the first a re-detection."""
+    for folder in ("objects", "surfaces"):
+        (tmp_path / folder).symlink_to(artifacts / folder)
+    write_artifact(layout.sequences_file(tmp_path, "tracking"), "sequences", recording["sequences"].as_datasets())
+    assert cli.main(["bench", "track", "--artifacts", str(tmp_path), *BASELINE, "track.read_ahead=1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"{recording['sequences'].names[0]}: {F} frames, update median ")
+    figures = json.loads(lines[-1])
+    assert figures["frames"] == F and figures["redetections"] >= 1 and figures["read_ahead"] == 1
+    assert figures["fps_all"] > 0 and 0 < figures["update_median_ms"] <= figures["update_p90_ms"]
