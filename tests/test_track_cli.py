@@ -263,3 +263,9 @@ def test_bench_track_times_the_sequences_artifact(capsys, artifacts, recording, 
     figures = json.loads(lines[-1])
     assert figures["frames"] == F and figures["redetections"] >= 1 and figures["read_ahead"] == 1
     assert figures["fps_all"] > 0 and 0 < figures["update_median_ms"] <= figures["update_p90_ms"]
+
+
+def test_bench_track_without_sequences_says_which_stage_makes_them(capsys, tmp_path):
+    assert cli.main(["bench", "track", "--artifacts", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "tracking.h5: missing" in err and "dvc repro make_sequences" in err
