@@ -147,14 +147,15 @@ def test_baseline_uses_every_point_and_needs_no_images(world):
     assert len(result.poses) >= 1 and result.n_hypotheses == result.selection.tuples.shape[0]
 
 
-@pytest.mark.parametrize("n_sensors", [1, 2, 4])
+@pytest.mark.parametrize("n_sensors", [1, 2, 4, 5])
 def test_any_number_of_sensors_works(world, n_sensors):
     T = world["T_world_sensors"]
-    if n_sensors == 4:
-        # a fourth sensor on the +x face
-        j = int(np.argmin(np.linalg.norm(world["points"] - [HALF[0], -0.01, -0.03], axis=1)))
-        T_extra = T_TRUE @ sensor_poses_touching(world["points"][j], np.array([1.0, 0, 0]), 0.3, 0.002)
-        T = np.concatenate([T, T_extra[None]])
+    if n_sensors > 3:
+        # a fourth sensor on the +x face, a fifth on the +y face (selected by the beam: select.join_sensors is 3)
+        targets, normals = [[HALF[0], -0.01, -0.03], [-0.02, HALF[1], -0.04]], np.eye(3)[:2]
+        j = [int(np.argmin(np.linalg.norm(world["points"] - t, axis=1))) for t in targets[: n_sensors - 3]]
+        T_extra = [T_TRUE @ sensor_poses_touching(world["points"][k], n, 0.3, 0.002) for k, n in zip(j, normals)]
+        T = np.concatenate([T, np.stack(T_extra)])
         angles = np.append(world["db_angles"][world["idx"]], world["db_angles"][j])
     else:
         T = T[:n_sensors]
@@ -164,7 +165,7 @@ def test_any_number_of_sensors_works(world, n_sensors):
         result = e.estimate(T, np.zeros((n_sensors, 320, 240, 3), dtype=np.uint8))
     assert result.penetrations.shape[1] == n_sensors
     assert result.selection.tuples.shape == (result.selection.tuples.shape[0], n_sensors)
-    if n_sensors == 4:
+    if n_sensors > 3:
         assert pose_errors(result.best, T_TRUE)[0] < 0.002
 
 
@@ -417,6 +418,12 @@ def test_normal_switches_apply_up_to_normal_max_sensors(world, off_grid):
 def test_normal_max_sensors_must_be_a_positive_count(key):
     with pytest.raises(ConfigError, match="normal_max_sensors"):
         settings(**{key: 0})
+
+
+def test_join_sensors_is_null_or_at_least_two():
+    with pytest.raises(ConfigError, match="select.join_sensors"):
+        settings(**{"select.join_sensors": 1})
+    assert settings(**{"select.join_sensors": "null"}).select.join_sensors is None
 
 
 # --- a hand whose units differ: one no-contact image per sensor ---------------------------------------

@@ -1,3 +1,4 @@
+import itertools
 import warnings
 
 import numpy as np
@@ -458,3 +459,79 @@ def test_a_join_over_its_check_budget_is_no_match_and_a_large_budget_changes_not
                                    **{**SELECT, "rule": rule})
         np.testing.assert_array_equal(free.tuples, capped.tuples)
         np.testing.assert_array_equal(free.errors, capped.errors)
+
+
+def _naive_beam(points, s, omegas, n_max, join_sensors, delta_max=SELECT["delta_max"]):
+    """The beam of rule best_n beyond ``join_sensors`` sensors, with loops: the n_max best tuples of the
+    join_sensors sensors with the fewest candidates (brute force), then each other sensor added in order of
+    candidate count, keeping the n_max lowest summed pair errors (ties by partial tuple, then candidate),
+    then the n_max lowest mean errors below delta_max (ties by index order)."""
+    omegas = [np.unique(o) for o in omegas]
+    by_size = sorted(range(len(omegas)), key=lambda i: (len(omegas[i]), i))
+    core = sorted(by_size[:join_sensors])
+
+    def pair_error(a, i, b, j):
+        return abs(float(np.linalg.norm(points[i] - points[j])) - float(np.linalg.norm(s[a] - s[b])))
+
+    core_tuples, core_errors = sel.tuples_within_brute_force(points, s[core], [omegas[c] for c in core], delta_max)
+    order = np.lexsort(tuple(core_tuples.T[::-1]) + (core_errors,))[:n_max]
+    beam = [dict(zip(core, row)) for row in core_tuples[np.sort(order)]]  # lexicographic order, as the join's
+    sums = [sum(pair_error(a, t[a], b, t[b]) for a, b in itertools.combinations(core, 2)) for t in beam]
+    for m in by_size[join_sensors:]:
+        grown = []
+        for p, (t, total) in enumerate(zip(beam, sums)):
+            for j_pos, j in enumerate(omegas[m]):
+                grown.append((total + sum(pair_error(a, t[a], m, j) for a in t), p * len(omegas[m]) + j_pos, {**t, m: j}))
+        grown.sort(key=lambda x: (x[0], x[1]))
+        beam, sums = [x[2] for x in grown[:n_max]], [x[0] for x in grown[:n_max]]
+    tuples = np.array([[t[i] for i in range(len(omegas))] for t in beam])
+    errors = sel.tuples_to_errors(points, s, tuples)
+    keep = errors < delta_max
+    order = np.lexsort(tuple(tuples[keep].T[::-1]) + (errors[keep],))[:n_max]
+    chosen = tuples[keep][order]
+    chosen = chosen[np.lexsort(chosen.T[::-1])]  # rows in lexicographic order, as every selection returns them
+    return chosen, sel.tuples_to_errors(points, s, chosen)
+
+
+@pytest.mark.parametrize("n_sensors,join_sensors", [(4, 3), (5, 3), (4, 2)])
+@pytest.mark.parametrize("n_max", [1, 9, 60])
+def test_best_n_beyond_join_sensors_is_the_naive_beam(n_sensors, join_sensors, n_max):
+    rng = np.random.default_rng(10 * n_sensors + n_max)
+    points, _true, s = _scene(rng, 50, n_sensors, noise=0.002)
+    omegas = [rng.choice(50, size, replace=False) for size in rng.integers(6, 14, n_sensors)]
+    result = sel.select_tuples(points, s, omegas, n_max, rng=rng, rule="best_n", join_sensors=join_sensors, **SELECT)
+    expected, errors = _naive_beam(points, s, omegas, n_max, join_sensors)
+    np.testing.assert_array_equal(result.tuples, expected)
+    np.testing.assert_array_equal(result.errors, errors)
+    assert result.delta_d == errors.max()
+
+
+@pytest.mark.parametrize("n_sensors", [2, 3])
+def test_join_sensors_leaves_three_sensors_or_fewer_exact(n_sensors):
+    rng = np.random.default_rng(n_sensors)
+    points, _true, s = _scene(rng, 80, n_sensors, noise=0.002)
+    omegas = [rng.choice(80, 30, replace=False) for _ in range(n_sensors)]
+    exact = sel.select_tuples(points, s, omegas, 40, rng=rng, rule="best_n", **SELECT)
+    beam = sel.select_tuples(points, s, omegas, 40, rng=rng, rule="best_n", join_sensors=3, **SELECT)
+    np.testing.assert_array_equal(beam.tuples, exact.tuples)
+    np.testing.assert_array_equal(beam.errors, exact.errors)
+
+
+@pytest.mark.parametrize("n_sensors", [4, 5, 6])
+def test_the_beam_keeps_the_true_tuple_and_the_normal_check(n_sensors):
+    rng = np.random.default_rng(n_sensors)
+    points, normals, true, s, m = _normal_scene(rng, 400, n_sensors)
+    check = sel.NormalCheck(normals, m, np.radians(20.0))
+    omegas = [np.union1d(rng.choice(400, 120, replace=False), [t]) for t in true]
+    result = sel.select_tuples(points, s, omegas, 200, rng=rng, rule="best_n", normals=check, join_sensors=3, **SELECT)
+    assert any(np.array_equal(row, true) for row in result.tuples)  # exact contacts: error 0, kept by every step
+    assert sel.tuples_normal_consistent(points, s, result.tuples, check).all()
+    assert np.all(np.diff(result.errors[np.lexsort((result.errors,))]) >= 0) and result.errors.max() < SELECT["delta_max"]
+    assert result.tuples.shape[0] <= 200
+
+
+def test_join_sensors_must_be_at_least_two():
+    rng = np.random.default_rng(0)
+    points, _true, s = _scene(rng, 30, 4)
+    with pytest.raises(InputError, match="join_sensors"):
+        sel.select_tuples(points, s, [np.arange(30)] * 4, 5, rng=rng, rule="best_n", join_sensors=1, **SELECT)

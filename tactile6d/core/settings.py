@@ -115,10 +115,13 @@ class SelectSettings(_Section):
     centre_images: bool
     align_light: bool
     max_checks: int | None
+    join_sensors: int | None
 
     def __post_init__(self) -> None:
         if self.max_checks is not None and not self.max_checks >= 1:
             raise ConfigError(f"select.max_checks must be null (no limit) or >= 1, got {self.max_checks}")
+        if self.join_sensors is not None and not self.join_sensors >= 2:
+            raise ConfigError(f"select.join_sensors must be null (join every sensor) or >= 2, got {self.join_sensors}")
         if self.method not in METHODS:
             raise ConfigError(f"select.method must be one of {', '.join(METHODS)}, not {self.method!r}")
         if self.contacts not in CONTACT_SOURCES:

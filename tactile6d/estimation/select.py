@@ -45,6 +45,18 @@ database side (object frame) and on the sensors' side (world). Pairs that fail a
 pair tables (pruned in the join), and every surviving tuple is checked again exactly in float64, as the
 brute force does, so both still return the same set.
 
+More sensors than ``join_sensors`` (``select.join_sensors``, rule ``best_n``): the pruned join's work grows
+steeply with L, since each partial tuple may spend the whole budget of all L (L - 1) / 2 pairs on its first
+ones (1-2 s a scene at L = 4 and up to 36 s at L = 5, against 0.03 s at L = 3: docs/speed.md). Beyond
+``join_sensors`` sensors, the ``n_max`` best tuples of the ``join_sensors`` sensors with the fewest candidates are
+found as above (exactly), then the other sensors are added one at a time, in order of their candidate counts:
+every kept partial tuple is extended by every candidate of the next sensor, and the ``n_max`` extensions of
+lowest summed pair error are kept (a beam; ties by position). The survivors' mean errors over all pairs are
+recomputed exactly, those below ``delta_max`` that pass the normal check kept, the ``n_max`` lowest returned.
+Not the exact ``n_max`` lowest of all L-tuples: a beam that starts from a well-fitting subset (the true
+tuple's subset is among the core's best, as at L = 3); measured as accurate as the exact join (docs/speed.md).
+``test_selection.py`` checks it against a naive beam written with loops.
+
 The baseline is the same with Omega_i = all M points: ``all_points_omegas``. Timings: docs/speed.md.
 
 Units: metres for points and thresholds, radians for latent angles.
@@ -70,6 +82,8 @@ from tactile6d.perception.contacts import Contacts
 
 # How many candidate extensions one vectorised step of the join handles (memory: ~50 bytes each).
 _JOIN_CHUNK = 1 << 21
+# How many (partial tuple, candidate) sums one step of the beam extension holds at once (float32: 16 MB).
+_EXTEND_CHUNK = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -315,6 +329,21 @@ class _PairTables:
                 table[~ok] = np.inf
             self.table[(a, k)] = table
 
+    def pair(self, a: int, b: int) -> np.ndarray:
+        """The table of sensors a and b (a != b): (|Omega_a|, |Omega_b|) float32."""
+        return self.table[(a, b)] if a < b else self.table[(b, a)].T
+
+    def subset(self, sensors) -> _PairTables:
+        """The tables of the sensors ``sensors`` (increasing indices) alone, renumbered 0, 1, ... in that
+        order, with the normal check restricted to them: what ``_join`` needs to join those sensors."""
+        view = object.__new__(_PairTables)
+        view.table = {(i, j): self.table[(a, b)]
+                      for (i, a), (j, b) in itertools.combinations(enumerate(int(x) for x in sensors), 2)}
+        check = self.normals
+        view.normals = None if check is None else NormalCheck(
+            check.normals, np.asarray(check.sensor_normals)[np.asarray(sensors)], check.tol)
+        return view
+
     def anchor(self, k: int, bound: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """The entries of table (0, k) below ``bound``, sorted by (row, error).
 
@@ -473,6 +502,82 @@ def _best_n(join, n_max: int, delta_first: float, delta_max: float, n_pairs: int
     return DistanceSelection(tuples, errors, float(errors.max()), seen > n_max)
 
 
+def _pair_errors(points: np.ndarray, s: np.ndarray, i_a: np.ndarray, i_b: np.ndarray, a: int, b: int) -> np.ndarray:
+    """(T,) m: ``| ||P[i_a] - P[i_b]|| - ||s_a - s_b|| |``, database indices i_a, i_b (T,) of sensors a and b,
+    in the arithmetic of ``tuples_to_errors``."""
+    return np.abs(pair_distances(points[i_a], points[i_b]) - pair_distances(s[a], s[b]))
+
+
+def _lowest_extensions(sums: np.ndarray, tables: _PairTables, positions: dict[int, np.ndarray], m: int, k: int
+                       ) -> tuple[np.ndarray, int]:
+    """The (partial tuple, candidate of sensor m) pairs that may be among the k of lowest summed pair error.
+
+    sums (P,) the partial tuples' summed pair errors (m); positions: sensor -> (P,) each partial tuple's
+    position in that sensor's Omega. Returns (flat indices p * |Omega_m| + j, increasing, of every pair whose
+    float32 sum from the tables is within a rounding slack of the k-th lowest: a superset of the k lowest
+    exact sums), and how many pairs have a finite sum (a pair the normal check rules out has none).
+    """
+    width = tables.pair(next(iter(positions)), m).shape[1]
+    slack = 2 * (len(positions) + 1) * _TABLE_SLACK  # each float32 sum is within half of it of the exact one
+    rows = max(1, _EXTEND_CHUNK // width)
+    kept, finite = [], 0
+    for lo in range(0, sums.size, rows):
+        hi = min(lo + rows, sums.size)
+        total = np.repeat(sums[lo:hi, None].astype(np.float32), width, axis=1)
+        for a, pos in positions.items():
+            total += tables.pair(a, m)[pos[lo:hi]]
+        flat = total.ravel()
+        n_finite = int(np.isfinite(flat).sum())
+        finite += n_finite
+        if n_finite == 0:
+            continue
+        # This chunk's k-th lowest is at least the overall k-th lowest: its slack band holds every pair of
+        # the chunk that the overall band holds.
+        kth = np.partition(flat, min(k, n_finite) - 1)[min(k, n_finite) - 1]
+        kept.append(lo * width + np.flatnonzero(flat <= kth + slack))
+    return (np.concatenate(kept) if kept else np.zeros(0, dtype=np.int64)), finite
+
+
+def _best_n_extended(points: np.ndarray, s: np.ndarray, omegas, tables: _PairTables, n_max: int, delta_first: float,
+                     delta_max: float, join_sensors: int, max_checks: int | None) -> DistanceSelection:
+    """Rule best_n for more than ``join_sensors`` sensors (module docstring): the ``n_max`` best tuples of the
+    ``join_sensors`` sensors with the fewest candidates, extended one sensor at a time keeping the ``n_max``
+    of lowest summed pair error, then the ``n_max`` lowest mean errors below ``delta_max``."""
+    by_size = [int(i) for i in np.argsort([o.size for o in omegas], kind="stable")]
+    core = sorted(by_size[:join_sensors])
+    n_core_pairs = join_sensors * (join_sensors - 1) // 2
+    sub, core_omegas = tables.subset(core), tuple(omegas[i] for i in core)
+    chosen = _best_n(lambda delta, stop_after=n_max: _join(points, s[core], core_omegas, sub, delta, stop_after, max_checks),
+                     n_max, delta_first, delta_max, n_core_pairs)
+    positions = {c: np.searchsorted(omegas[c], chosen.tuples[:, i]) for i, c in enumerate(core)}
+    sums = np.zeros(chosen.tuples.shape[0])
+    for a, b in itertools.combinations(core, 2):
+        sums += _pair_errors(points, s, omegas[a][positions[a]], omegas[b][positions[b]], a, b)
+    capped = chosen.capped
+    for m in by_size[join_sensors:]:
+        candidates, finite = _lowest_extensions(sums, tables, positions, m, n_max)
+        if finite == 0:
+            raise NoMatch(f"no candidate of sensor {m} passes the normal check with any tuple of the others")
+        p, j = np.divmod(candidates, omegas[m].size)
+        exact = sums[p].copy()
+        for a, pos in positions.items():
+            exact += _pair_errors(points, s, omegas[a][pos[p]], omegas[m][j], a, m)
+        best = np.lexsort((candidates, exact))[:n_max]  # the lowest exact sums, ties by position
+        capped = capped or finite > best.size
+        positions = {a: pos[p[best]] for a, pos in positions.items()}
+        positions[m], sums = j[best], exact[best]
+    tuples = np.stack([omegas[i][positions[i]] for i in range(s.shape[0])], axis=1)
+    errors = tuples_to_errors(points, s, tuples)
+    keep = errors < delta_max
+    if tables.normals is not None:
+        keep &= tuples_normal_consistent(points, s, tuples, tables.normals)
+    if not keep.any():
+        raise NoMatch("no tuple of database points matches the sensors' pairwise distances within "
+                      f"delta_d={delta_max:g} m")
+    tuples, errors = _lowest(tuples[keep], errors[keep], n_max)
+    return DistanceSelection(tuples, errors, float(errors.max()), capped)
+
+
 def select_tuples(
     points: np.ndarray,
     sensor_points: np.ndarray,
@@ -487,6 +592,7 @@ def select_tuples(
     normals: NormalCheck | None = None,
     tolerance: float = 0.0,
     max_checks: int | None = None,
+    join_sensors: int | None = None,
 ) -> DistanceSelection:
     """Distance-based selection with the adaptive threshold (module docstring).
 
@@ -500,6 +606,8 @@ def select_tuples(
     tolerance: m, how far the sensors' pair distances may be off (their poses' error,
     ``SensorSettings.pair_distance_tolerance``): the adaptive threshold is never lowered below it.
     max_checks: the most extensions of partial tuples one threshold's join may check (None: no limit).
+    join_sensors: rule best_n with more sensors than this: the beam extension of the module docstring
+    (None: every sensor joined exactly).
     The join's work grows with how many point pairs fit each sensor pair alone: for a sphere against
     three sensors on a larger curved object every pair fits somewhere and no triple does: its joins
     checked 7e9 extensions in 214 s to find none. The identification's screen sets it
@@ -511,6 +619,8 @@ def select_tuples(
     points, s, omegas = _check_inputs(points, sensor_points, omegas)
     if n_max < 1 or not (delta_start > 0 and step_down > 0 and step_up > 0 and delta_max >= delta_start):
         raise InputError("need n_max >= 1, positive steps and delta_max >= delta_start > 0")
+    if join_sensors is not None and not join_sensors >= 2:
+        raise InputError(f"join_sensors must be None (join every sensor) or >= 2, got {join_sensors}")
     if not tolerance >= 0:
         raise InputError(f"the pair-distance tolerance must be >= 0 m, got {tolerance}")
     if rule not in DELTA_D_RULES:
@@ -528,6 +638,8 @@ def select_tuples(
         return _join(points, s, omegas, tables, delta, stop_after, max_checks)
 
     if rule == "best_n":
+        if join_sensors is not None and s.shape[0] > join_sensors:
+            return _best_n_extended(points, s, omegas, tables, n_max, step_up, delta_max, join_sensors, max_checks)
         return _best_n(join, n_max, step_up, delta_max, s.shape[0] * (s.shape[0] - 1) // 2)
 
     # The descending grid delta_start - k * step_down, down to its first non-positive value. The
@@ -648,6 +760,7 @@ def select(
         normals=check,
         tolerance=sensors.pair_distance_tolerance,
         max_checks=None if settings.max_checks is None else int(settings.max_checks),
+        join_sensors=None if settings.join_sensors is None else int(settings.join_sensors),
     )
     return Selection(
         tuples=chosen.tuples,
