@@ -47,15 +47,16 @@ brute force does, so both still return the same set.
 
 More sensors than ``join_sensors`` (``select.join_sensors``, rule ``best_n``): the pruned join's work grows
 steeply with L, since each partial tuple may spend the whole budget of all L (L - 1) / 2 pairs on its first
-ones (1-2 s a scene at L = 4 and up to 36 s at L = 5, against 0.03 s at L = 3: docs/speed.md). Beyond
-``join_sensors`` sensors, the ``n_max`` best tuples of the ``join_sensors`` sensors with the fewest candidates are
-found as above (exactly), then the other sensors are added one at a time, in order of their candidate counts:
-every kept partial tuple is extended by every candidate of the next sensor, and the ``n_max`` extensions of
-lowest summed pair error are kept (a beam; ties by position). The survivors' mean errors over all pairs are
-recomputed exactly, those below ``delta_max`` that pass the normal check kept, the ``n_max`` lowest returned.
-Not the exact ``n_max`` lowest of all L-tuples: a beam that starts from a well-fitting subset (the true
-tuple's subset is among the core's best, as at L = 3); measured as accurate as the exact join (docs/speed.md).
-``test_selection.py`` checks it against a naive beam written with loops.
+ones (medians of 0.2-0.5 s a scene at L = 4 and about 3 s at L = 5, up to 36 s, against 0.03 s at L = 3:
+docs/speed.md). Beyond ``join_sensors`` sensors, the ``n_max`` best tuples of the ``join_sensors`` sensors
+with the fewest candidates are found as above (exactly), then the other sensors are added one at a time, in
+order of their candidate counts: every kept partial tuple is extended by every candidate of the next
+sensor, and the ``n_max`` extensions of lowest summed pair error are kept (a beam; ties by position). The
+survivors' mean errors over all pairs are recomputed exactly, those below ``delta_max`` that pass the
+normal check kept, the ``n_max`` lowest returned. Not the exact ``n_max`` lowest of all L-tuples: a beam
+that starts from the tuples that fit a subset of the sensors best, as at L = 3; on the generated scenes of
+docs/speed.md as accurate as the exact join within the spread between seeds. ``test_selection.py`` checks
+it against a naive beam written with loops.
 
 The baseline is the same with Omega_i = all M points: ``all_points_omegas``. Timings: docs/speed.md.
 
