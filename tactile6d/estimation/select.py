@@ -232,6 +232,15 @@ def _pairs(n_sensors: int) -> list[tuple[int, int]]:
     return list(itertools.combinations(range(n_sensors), 2))
 
 
+def _pair_errors(points: np.ndarray, s: np.ndarray, i_a: np.ndarray, i_b: np.ndarray, a: int, b: int) -> np.ndarray:
+    """(T,) m: ``| ||P[i_a] - P[i_b]|| - ||s_a - s_b|| |``, database indices i_a, i_b (T,) of sensors a and b.
+
+    The one place this arithmetic is written: the join's float64 decisions and ``tuples_to_errors`` must
+    agree to the bit, or a tuple the join kept could be re-scored differently.
+    """
+    return np.abs(pair_distances(points[i_a], points[i_b]) - pair_distances(s[a], s[b]))
+
+
 def tuples_to_errors(points: np.ndarray, sensor_points: np.ndarray, tuples: np.ndarray) -> np.ndarray:
     """Mean over sensor pairs of the distance mismatch.
 
@@ -244,7 +253,7 @@ def tuples_to_errors(points: np.ndarray, sensor_points: np.ndarray, tuples: np.n
     pairs = _pairs(s.shape[0])
     total = np.zeros(tuples.shape[0])
     for a, b in pairs:
-        total = total + np.abs(pair_distances(points[tuples[:, a]], points[tuples[:, b]]) - pair_distances(s[a], s[b]))
+        total = total + _pair_errors(points, s, tuples[:, a], tuples[:, b], a, b)
     return total / max(len(pairs), 1)
 
 
@@ -501,12 +510,6 @@ def _best_n(join, n_max: int, delta_first: float, delta_max: float, n_pairs: int
             seen = max(seen, t.shape[0])
     tuples, errors = _lowest(tuples, errors, n_max)
     return DistanceSelection(tuples, errors, float(errors.max()), seen > n_max)
-
-
-def _pair_errors(points: np.ndarray, s: np.ndarray, i_a: np.ndarray, i_b: np.ndarray, a: int, b: int) -> np.ndarray:
-    """(T,) m: ``| ||P[i_a] - P[i_b]|| - ||s_a - s_b|| |``, database indices i_a, i_b (T,) of sensors a and b,
-    in the arithmetic of ``tuples_to_errors``."""
-    return np.abs(pair_distances(points[i_a], points[i_b]) - pair_distances(s[a], s[b]))
 
 
 def _lowest_extensions(sums: np.ndarray, tables: _PairTables, positions: dict[int, np.ndarray], m: int, k: int
