@@ -40,3 +40,17 @@ def test_the_paper_preset_trains_the_autoencoder_on_reconstruction_alone():
     assert compose_config().ae.rank_weight > 0
     assert compose_config(["preset=paper"]).ae.rank_weight == 0
     assert compose_config(["ae=paper"]).ae.rank_weight == 0
+
+
+def test_every_config_group_is_packaged():
+    """An installed tactile6d composes from its own copy of conf/ (tests/test_installed.py): a config group
+    missing from pyproject's package list would be left out of the wheel, or make setuptools warn."""
+    import tomllib
+
+    setuptools = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    groups = {p.name for p in (REPO_ROOT / "conf").iterdir() if p.is_dir() and any(p.glob("*.yaml"))}
+    packaged = {name.removeprefix("tactile6d.conf.") for name in setuptools["packages"]
+                if name.startswith("tactile6d.conf.")}
+    assert packaged == groups
+    assert setuptools["package-dir"]["tactile6d.conf"] == "conf"
+    assert "*.yaml" in setuptools["package-data"]["*"]
