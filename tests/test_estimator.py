@@ -18,7 +18,7 @@ from tactile6d.core.settings import Settings
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_scene_dir, write_artifact
 from tactile6d.estimation import estimator as est
-from tactile6d.perception import contact_patch
+from tactile6d.perception import contact_patch, photometric
 from tactile6d.perception.encode import load_background
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 from tactile6d.sim.meshes import pack_pieces
@@ -507,6 +507,22 @@ def test_the_default_background_path_is_unchanged_by_per_sensor_backgrounds(worl
     each = e.estimate(T, images, backgrounds=np.stack([three_units["common"]] * 3))
     np.testing.assert_array_equal(each.angles, once.angles)
     np.testing.assert_array_equal(each.poses, once.poses)
+
+
+def test_a_no_contact_image_of_another_unit_is_warned_about(world, three_units):
+    """Each unit's images read against another unit's no-contact image (the common one turned half a turn:
+    the same LEDs laid out otherwise) give a UnitWarning per image; against their own, none."""
+    e = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
+                                     background=three_units["common"])
+    T, images = world["T_world_sensors"], three_units["over_units"]
+    with pytest.warns(photometric.UnitWarning) as caught:
+        result = e.estimate(T, images, backgrounds=np.ascontiguousarray(three_units["common"][::-1, ::-1]))
+    unit_warnings = [str(w.message) for w in caught if w.category is photometric.UnitWarning]
+    assert [m.split(":")[0] for m in unit_warnings] == ["image 0", "image 1", "image 2"]
+    assert all(fit.from_another_unit for fit in result.light)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", photometric.UnitWarning)
+        e.estimate(T, images, backgrounds=three_units["units"])
 
 
 def test_one_no_contact_latent_serves_every_unit(three_units):

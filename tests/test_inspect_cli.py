@@ -145,3 +145,19 @@ def test_own_backgrounds_are_taken_as_estimate_takes_them(capsys, scene, artifac
 def test_missing_patch_calibration_names_the_stage_that_makes_it(capsys, scene, tmp_path):
     code, _, err = run(capsys, "--scene", str(scene), "--artifacts", str(tmp_path / "empty"))
     assert code == 2 and "calibrate_patch" in err
+
+
+def test_another_units_no_contact_image_is_named_but_the_scene_still_read(capsys, scene, artifacts, data_dir):
+    """The paper's triplet read against TACTO's DIGIT's no-contact image: each sensor's light problems say it
+    looks like another unit's (a warning: the estimator reads the scene all the same)."""
+    other = data_dir / "digit" / "tacto" / "bg_digit_240_320.jpg"
+    code, reading = run_json(capsys, scene, artifacts, "--background", str(other))
+    assert code == 0 and not reading["refused"]
+    for i, s in enumerate(reading["sensors"]):
+        assert s["light"]["another_unit"]
+        assert any(p.startswith(f"image {i}: its no-contact image looks like another DIGIT unit's")
+                   for p in s["light_problems"])
+    _, own = run_json(capsys, scene, artifacts)
+    assert not any(s["light"]["another_unit"] or s["light_problems"] for s in own["sensors"])
+    _, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts), "--background", str(other))
+    assert "  light warning: image 2: its no-contact image looks like another DIGIT unit's" in out

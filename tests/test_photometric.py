@@ -207,3 +207,67 @@ def test_alignment_is_off_for_the_baseline_and_without_a_no_contact_image():
     assert encode_step.align_light(off, images, colourful_background()) == (images, None)
     on = SelectSettings.from_cfg(_select_section())
     assert encode_step.align_light(on, images, None) == (images, None)
+
+
+# --- a no-contact image of another unit ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def two_units(data_dir):
+    """The same three presses (a sphere, a box's edge, a box's face pressed 1.8 mm over most of the gel)
+    rendered over two units' no-contact images, the paper's DIGIT's and TACTO's -> {unit: (images (3, H, W,
+    3), its no-contact image)}, RGB."""
+    import cv2
+
+    from tactile6d.core.config import compose_config
+    from tactile6d.perception.encode import load_background
+
+    paper = load_background(compose_config(), data_dir)
+    tacto = cv2.imread(str(data_dir / "digit" / "tacto" / "bg_digit_240_320.jpg"))
+    if tacto is None:
+        pytest.skip("TACTO's background image is not in the data directory")
+    presses = [PRESSES["sphere"], PRESSES["box edge"], (*PRESSES["box face"][:3], 0.0018)]
+    cache = {}
+    out = {}
+    for unit, bgr in (("paper", np.ascontiguousarray(paper[..., ::-1])), ("tacto", tacto)):
+        r = DigitRenderer.from_default_config(bgr)
+        images = [press(r, lambda s: cache.setdefault(s, contact_patch.shape_to_mesh(s)), shape, point, normal,
+                        depth=depth, seed=20 + k)[0].image for k, (shape, point, normal, depth) in enumerate(presses)]
+        out[unit] = (np.stack(images), r.no_contact(seed=30))
+    return out
+
+
+def test_a_no_contact_image_of_another_unit_is_told_apart(two_units):
+    """Against its own unit's no-contact image every press agrees where the gel is not pressed (drifted
+    light too); against the other unit's hardly anywhere, and each image says so."""
+    for unit, other in (("paper", "tacto"), ("tacto", "paper")):
+        images, own = two_units[unit]
+        drifted = np.stack([noisy(perturb.drift_image_light(im, [1.1, 0.9, 1.05], [0.83, 1.2, 0.9]), 2.0, 5)
+                            for im in images])
+        for batch in (images, drifted):
+            fits = [photometric.fit_light(im, own) for im in batch]
+            assert not any(f.from_another_unit for f in fits), [f.agreement for f in fits]
+            assert photometric.unit_problems(batch, np.stack([own] * 3), fits) == [None] * 3
+        wrong = np.stack([two_units[other][1]] * 3)
+        fits = [photometric.fit_light(im, bg) for im, bg in zip(images, wrong)]
+        assert all(f.from_another_unit for f in fits), [f.agreement for f in fits]
+        problems = photometric.unit_problems(images, wrong, fits)
+        for i, problem in enumerate(problems):
+            assert problem.startswith(f"image {i}: its no-contact image looks like another DIGIT unit's")
+            assert "record this unit's no-contact image" in problem
+
+
+def test_no_contact_images_given_in_another_order_are_named(two_units):
+    images = np.stack([two_units["paper"][0][0], two_units["tacto"][0][1]])
+    swapped = np.stack([two_units["tacto"][1], two_units["paper"][1]])
+    fits = [photometric.fit_light(im, bg) for im, bg in zip(images, swapped)]
+    first, second = photometric.unit_problems(images, swapped, fits)
+    assert "it agrees with sensor 1's no-contact image" in first and "another order than the sensors" in first
+    assert "it agrees with sensor 0's no-contact image" in second
+    with pytest.warns(photometric.UnitWarning) as caught:
+        photometric.warn_about_units(images, swapped, fits)
+    assert [str(w.message) for w in caught] == [first, second]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        right = np.stack([two_units["paper"][1], two_units["tacto"][1]])
+        photometric.warn_about_units(images, right, [photometric.fit_light(im, bg) for im, bg in zip(images, right)])

@@ -53,7 +53,8 @@ class SensorReading:
     image, background (320, 240, 3) uint8 RGB: the image as given and its no-contact image; aligned: the
     image after the light alignment (what every later reading sees); light: its ``photometric.LightFit``
     (None when the light is not aligned, ``select.align_light`` off); patch: its ``ContactPatch`` (None when
-    it cannot be read); problems: why the estimator would refuse it, each a sentence naming the image.
+    it cannot be read); problems: why the estimator would refuse it, each a sentence naming the image;
+    unit: why its no-contact image looks like another unit's (``photometric.unit_problems``), or None.
     """
 
     image: np.ndarray
@@ -62,11 +63,17 @@ class SensorReading:
     light: photometric.LightFit | None
     patch: ContactPatch | None
     problems: list[str]
+    unit: str | None = None
+
+    @property
+    def light_problems(self) -> list[str]:
+        """Why its light's reading cannot be trusted: the fit's problems, then the no-contact image's unit."""
+        return ([] if self.light is None else self.light.problems()) + ([] if self.unit is None else [self.unit])
 
     def to_dict(self) -> dict:
         """Plain numbers for JSON: the contact (``contact_summary``), the light's fit and the problems."""
         return {**contact_summary(self.patch), "light": None if self.light is None else self.light.to_dict(),
-                "light_problems": [] if self.light is None else self.light.problems(), "problems": self.problems}
+                "light_problems": self.light_problems, "problems": self.problems}
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,7 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
     except InputError as exc:
         scene_problems.append(str(exc))
     aligned, fits = encode.align_light(select, images, per_sensor)
+    units = [None] * len(images) if fits is None else photometric.unit_problems(images, per_sensor, fits)
     sensors = []
     for i, (image, background) in enumerate(zip(images, per_sensor)):
         problem = inputs.image_problem(i, image, background)
@@ -113,7 +121,7 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
             patch = None
             problems.append(f"image {i}: {exc}")
         sensors.append(SensorReading(image, np.asarray(background), aligned[i], None if fits is None else fits[i],
-                                     patch, problems))
+                                     patch, problems, units[i]))
     return SceneReading(sensors, scene_problems)
 
 
@@ -156,7 +164,7 @@ def sensor_lines(i: int, reading: SensorReading) -> list[str]:
         gamma = "/".join(f"{v:.2f}" for v in fit.gamma)
         state = "aligned" if fit.applied else "left as given"
         lines.append(f"  light: gain {gain}, gamma {gamma} (R/G/B) against its no-contact image; {state}")
-        lines += [f"  light warning: {p}" for p in fit.problems()]
+    lines += [f"  light warning: {p}" for p in reading.light_problems]
     lines += [f"  problem: {p}" for p in reading.problems]
     return lines
 

@@ -21,9 +21,12 @@ weak prior in the refinement). The fit is applied as one lookup table per channe
 
 ``LightFit.trustworthy`` says whether the fit can be trusted: a drift far beyond what a unit's LEDs do
 (``MAX_DRIFT``) is not, and is more often a press that covers nearly the whole gel, whose colours the
-fit took for the light; such a fit is reported (``LightWarning``) and not applied. An image of another
-unit than its no-contact image's is not told apart by the fit (its few matching blocks fit a line as
-well as a heavy press's untouched rim does).
+fit took for the light; such a fit is reported (``LightWarning``) and not applied.
+
+A no-contact image of another unit than the image's is told by how little of the image follows the fit:
+its LEDs light the gel in another pattern, which no change of light per channel maps onto this unit's, so
+only scattered blocks agree with it by chance, where an image of the same unit agrees wherever the gel is
+not pressed (``LightFit.from_another_unit``, ``unit_problems``; a ``UnitWarning``).
 """
 
 from __future__ import annotations
@@ -46,6 +49,13 @@ PRIOR_WEIGHT = 1e-3  # per block, the weight of (b - 1)^2 beside the squared log
 VALID = (8.0, 247.0)  # block means outside this are clipped or nearly so, and not used
 
 MIN_CHANGE = 2.5  # grey levels: a fit that moves an image by less, on average, is not applied (align_images)
+# The share of an image's blocks, or of its rim's, that must follow its fit for its no-contact image to be
+# taken for its own unit's. Measured (docs/real_sensors.md): on the pipeline's generated sets (720 images
+# against their own unit's) at least 12 % of the image follows; a press over nearly all of the gel leaves
+# less there (3.8 % in tests/test_estimator.py's scene) but its untouched rim (8.5 % of it); against another
+# unit's (the paper's DIGIT and TACTO's, each also mirrored or turned) at most 4.4 % and 3.7 %.
+MIN_AGREEMENT = 0.05
+RIM = 3  # blocks: the image's rim, where a press reaches last (12 pixels)
 
 # Beyond these the light is not what a unit's LEDs drift to: its reading cannot be trusted.
 MAX_DRIFT = {"gain": (0.67, 1.5), "gamma": (0.67, 1.5)}
@@ -58,7 +68,8 @@ class LightFit:
     log_gain, exponent: (3,) ``a_c``, ``b_c`` of the module docstring (the image -> no-contact mapping);
     residual: (3,) robust standard deviation, grey levels, of the no-contact image about the fitted
     mapping on the blocks that follow it; outliers: share of the blocks that do not (contact, or a
-    no-contact image of another unit); applied: whether the image was changed (``align_images``).
+    no-contact image of another unit); applied: whether the image was changed (``align_images``);
+    rim_agreement: share of the blocks within ``RIM`` of the image's edge that follow the fit.
     """
 
     log_gain: np.ndarray
@@ -66,6 +77,7 @@ class LightFit:
     residual: np.ndarray
     outliers: float
     applied: bool = True
+    rim_agreement: float = 1.0
 
     @property
     def gain(self) -> np.ndarray:
@@ -76,6 +88,18 @@ class LightFit:
     def gamma(self) -> np.ndarray:
         """(3,) the drift's gamma per channel."""
         return 1.0 / self.exponent
+
+    @property
+    def agreement(self) -> float:
+        """The share of the image's blocks that follow the fit: the gel it does not press, when the no-contact
+        image is of its own unit."""
+        return 1.0 - self.outliers
+
+    @property
+    def from_another_unit(self) -> bool:
+        """Whether so little of the image, and of its rim, follows the fit (``MIN_AGREEMENT``) that its
+        no-contact image is likely another unit's (or the press covers nearly all of the gel, its rim too)."""
+        return max(self.agreement, self.rim_agreement) < MIN_AGREEMENT
 
     @property
     def trustworthy(self) -> bool:
@@ -97,7 +121,7 @@ class LightFit:
         """Plain numbers for JSON output."""
         return {"gain": self.gain.round(4).tolist(), "gamma": self.gamma.round(4).tolist(),
                 "residual": self.residual.round(2).tolist(), "outliers": round(float(self.outliers), 4),
-                "applied": self.applied}
+                "applied": self.applied, "another_unit": self.from_another_unit}
 
 
 def _rgb(values: np.ndarray) -> str:
@@ -201,7 +225,9 @@ def fit_light(image: np.ndarray, background: np.ndarray) -> LightFit:
         # The log spread in grey levels at the channel's median no-contact value.
         residual[c] = scale * float(np.median(exp_[..., c]))
         outlier |= ~inliers.reshape(outlier.shape)
-    return LightFit(log_gain, exponent, residual, float(outlier.mean()))
+    rim = np.ones(outlier.shape, dtype=bool)
+    rim[RIM:-RIM, RIM:-RIM] = False
+    return LightFit(log_gain, exponent, residual, float(outlier.mean()), rim_agreement=float(1.0 - outlier[rim].mean()))
 
 
 def lookup_tables(fit: LightFit) -> np.ndarray:
@@ -250,6 +276,44 @@ def warn_about_light(fits: list[LightFit], stacklevel: int = 4) -> None:
         for problem in fit.problems():
             warnings.warn(f"image {i}: {problem}; read as given, without aligning its light (if the light did "
                           "change, record its no-contact image again)", LightWarning, stacklevel=stacklevel)
+
+
+def unit_problems(images: np.ndarray, backgrounds: np.ndarray, fits: list[LightFit]) -> list[str | None]:
+    """Per image (L, H, W, 3) uint8, a sentence when its no-contact image (backgrounds (L, H, W, 3) uint8, one
+    per image) looks like another unit's (``LightFit.from_another_unit`` of its fit, fits as ``align_images``
+    returned them), else None. When the image agrees instead with another sensor's no-contact image given,
+    the sentence names it: no-contact images passed in another order than the sensors."""
+    out = []
+    for i, fit in enumerate(fits):
+        if not fit.from_another_unit:
+            out.append(None)
+            continue
+        text = (f"image {i}: its no-contact image looks like another DIGIT unit's: under any change of light only "
+                f"{100 * fit.agreement:.1f} % of the image and {100 * fit.rim_agreement:.1f} % of its rim agree with "
+                f"it, where an image of the same unit agrees on {100 * MIN_AGREEMENT:.0f} % or more of one of them "
+                "unless pressed over all of the gel; read against it, contacts come out millimetres to centimetres off")
+        others = [j for j in range(len(backgrounds)) if not np.array_equal(backgrounds[j], backgrounds[i])]
+        best = max(((fit_light(images[i], backgrounds[j]).agreement, j) for j in others), default=(0.0, None))
+        if best[0] >= MIN_AGREEMENT:
+            text += (f"; it agrees with sensor {best[1]}'s no-contact image on {100 * best[0]:.0f} %: were the "
+                     "no-contact images given in another order than the sensors?")
+        else:
+            text += ("; record this unit's no-contact image (a frame with nothing touching) and pass it, or "
+                     "estimate it from several scenes (--background from-scenes)")
+        out.append(text)
+    return out
+
+
+class UnitWarning(LightWarning):
+    """An image's no-contact image looks like another unit's (``unit_problems``)."""
+
+
+def warn_about_units(images: np.ndarray, backgrounds: np.ndarray, fits: list[LightFit], stacklevel: int = 4) -> None:
+    """A ``UnitWarning`` per image whose no-contact image looks like another unit's (``unit_problems``).
+    stacklevel: as ``warn_about_light``'s."""
+    for problem in unit_problems(images, backgrounds, fits):
+        if problem is not None:
+            warnings.warn(problem, UnitWarning, stacklevel=stacklevel)
 
 
 def background_from_images(images: np.ndarray, min_images: int = 5) -> np.ndarray | None:
