@@ -67,8 +67,11 @@ class SensorReading:
 
     @property
     def light_problems(self) -> list[str]:
-        """Why its light's reading cannot be trusted: the fit's problems, then the no-contact image's unit."""
-        return ([] if self.light is None else self.light.problems()) + ([] if self.unit is None else [self.unit])
+        """Why its light's reading cannot be trusted, as the estimator warns (``photometric.warn_about_light``):
+        its no-contact image's unit, else the fit's problems."""
+        if self.unit is not None:
+            return [self.unit]
+        return [] if self.light is None else self.light.problems()
 
     def to_dict(self) -> dict:
         """Plain numbers for JSON: the contact (``contact_summary``), the light's fit and the problems."""

@@ -298,9 +298,9 @@ class Estimator:
     def align_light(self, images, backgrounds=None) -> tuple[np.ndarray | None, list[photometric.LightFit] | None]:
         """Checked images (L, 320, 240, 3) -> (the same brought to their no-contact images' light, their fits),
         or (as given, None) where ``select.align_light`` is off or there are no no-contact images
-        (``perception.encode.align_light``); a ``photometric.LightWarning`` for each image whose light cannot be
-        trusted, a ``photometric.UnitWarning`` for each whose no-contact image looks like another unit's.
-        backgrounds as for ``estimate``."""
+        (``perception.encode.align_light``); a ``photometric.UnitWarning`` for each image whose no-contact
+        image looks like another unit's, a ``photometric.LightWarning`` for each other whose light cannot be
+        trusted (``photometric.warn_about_light``). backgrounds as for ``estimate``."""
         if images is None:
             return None, None
         return self._aligned(images, self.backgrounds(len(images), backgrounds))
@@ -309,8 +309,7 @@ class Estimator:
         """``align_light`` on checked images and no-contact images per sensor."""
         aligned, fits = encode_step.align_light(self.settings.select, images, per_sensor)
         if fits is not None:
-            photometric.warn_about_light(fits, stacklevel=4)
-            photometric.warn_about_units(images, per_sensor, fits, stacklevel=4)
+            photometric.warn_about_light(images, per_sensor, fits, stacklevel=4)
         return aligned, fits
 
     def encode(self, images, contacts: Contacts | None = None, T_world_sensors=None, backgrounds=None) -> np.ndarray:

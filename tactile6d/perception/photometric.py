@@ -270,15 +270,6 @@ class LightWarning(UserWarning):
     """An image's light differs from its no-contact image's more than a unit's drift (``LightFit.problems``)."""
 
 
-def warn_about_light(fits: list[LightFit], stacklevel: int = 4) -> None:
-    """A ``LightWarning`` per image whose fit is not trustworthy, naming the image (sensor order) and why.
-    stacklevel: as ``warnings.warn``'s; 4 names the line that called ``Estimator.estimate``."""
-    for i, fit in enumerate(fits):
-        for problem in fit.problems():
-            warnings.warn(f"image {i}: {problem}; read as given, without aligning its light (if the light did "
-                          "change, record its no-contact image again)", LightWarning, stacklevel=stacklevel)
-
-
 def unit_problems(images: np.ndarray, backgrounds: np.ndarray, fits: list[LightFit]) -> list[str | None]:
     """Per image (L, H, W, 3) uint8, a sentence when its no-contact image (backgrounds (L, H, W, 3) uint8, one
     per image) looks like another unit's (``LightFit.from_another_unit`` of its fit, fits as ``align_images``
@@ -310,12 +301,19 @@ class UnitWarning(LightWarning):
     """An image's no-contact image looks like another unit's (``unit_problems``)."""
 
 
-def warn_about_units(images: np.ndarray, backgrounds: np.ndarray, fits: list[LightFit], stacklevel: int = 4) -> None:
-    """A ``UnitWarning`` per image whose no-contact image looks like another unit's (``unit_problems``).
-    stacklevel: as ``warn_about_light``'s."""
-    for problem in unit_problems(images, backgrounds, fits):
-        if problem is not None:
-            warnings.warn(problem, UnitWarning, stacklevel=stacklevel)
+def warn_about_light(images: np.ndarray, backgrounds: np.ndarray, fits: list[LightFit], stacklevel: int = 4) -> None:
+    """What cannot be trusted in reading each image (L, H, W, 3) against its no-contact image (backgrounds (L,
+    H, W, 3)), fits as ``align_images`` returned them, naming the image (sensor order): a ``UnitWarning`` where
+    the no-contact image looks like another unit's (``unit_problems``; its fit's drift then says nothing of
+    the light), else a ``LightWarning`` per problem of its fit (``LightFit.problems``). stacklevel: as
+    ``warnings.warn``'s; 4 names the line that called ``Estimator.estimate``."""
+    for i, (fit, unit) in enumerate(zip(fits, unit_problems(images, backgrounds, fits))):
+        if unit is not None:
+            warnings.warn(unit, UnitWarning, stacklevel=stacklevel)
+            continue
+        for problem in fit.problems():
+            warnings.warn(f"image {i}: {problem}; read as given, without aligning its light (if the light did "
+                          "change, record its no-contact image again)", LightWarning, stacklevel=stacklevel)
 
 
 def background_from_images(images: np.ndarray, min_images: int = 5) -> np.ndarray | None:
