@@ -8,6 +8,7 @@ autoencoder; what is checked here is the command's input and output, the tracker
 import contextlib
 import io
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -269,3 +270,24 @@ def test_bench_track_without_sequences_says_which_stage_makes_them(capsys, tmp_p
     assert cli.main(["bench", "track", "--artifacts", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "tracking.h5: missing" in err and "dvc repro make_sequences" in err
+
+
+def test_warnings_that_come_again_with_other_figures_are_told_once_per_image():
+    from tactile6d.cli.track import warning_lines
+    from tactile6d.perception.photometric import LightWarning, UnitWarning
+
+    def caught(category, text):
+        return warnings.WarningMessage(text, category, "f.py", 1)
+
+    lines = warning_lines([
+        caught(UnitWarning, "image 0: only 1.2 % of the image and 0.4 % of its rim agree"),
+        caught(UnitWarning, "image 1: only 3.0 % of the image and 2.1 % of its rim agree"),
+        caught(UnitWarning, "image 0: only 0.9 % of the image and 1.0 % of its rim agree"),
+        caught(LightWarning, "image 0: its light would differ by a gain of 1.70/1.00/1.00"),
+        caught(UnitWarning, "image 0: only 2.5 % of the image and 0.1 % of its rim agree"),
+    ])
+    assert lines == [
+        "warning: image 0: only 1.2 % of the image and 0.4 % of its rim agree (3 times, the figures of the first)",
+        "warning: image 1: only 3.0 % of the image and 2.1 % of its rim agree",
+        "warning: image 0: its light would differ by a gain of 1.70/1.00/1.00",
+    ]

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import warnings
 from collections import deque
@@ -131,6 +132,21 @@ def frame_line(index: int, stamp: float | None, answer: TrackedFrame) -> str:
     return f"{index} {stamp_text} {answer.mode} {pose} {confidence}"
 
 
+def warning_lines(caught: list[warnings.WarningMessage]) -> list[str]:
+    """One ``warning:`` line per kind of warning the stream drew: the light's warnings come again at every
+    re-detection with other figures, so messages that differ only in their figures (not in the image or
+    sensor they name) are told once, with how many times they came."""
+    first: dict[tuple, str] = {}
+    counts: dict[tuple, int] = {}
+    for w in caught:
+        text = " ".join(str(w.message).split())
+        key = (w.category, re.sub(r"(?<!image )(?<!sensor )\d+(\.\d+)?", "#", text))
+        first.setdefault(key, text)
+        counts[key] = counts.get(key, 0) + 1
+    return [f"warning: {text}" + (f" ({counts[key]} times, the figures of the first)" if counts[key] > 1 else "")
+            for key, text in first.items()]
+
+
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     cfg = compose_config(args.overrides)
@@ -163,8 +179,8 @@ def main(argv: list[str]) -> int:
                 poses.append(answer.pose)
                 score = 1.0 if answer.confidence is None else answer.confidence
                 rows.append(bop.BopRow(args.scene_id, index, args.obj_id or 0, score, answer.pose, answer.seconds))
-    for w in caught:
-        write(f"warning: {' '.join(str(w.message).split())}", sys.stderr)
+    for line in warning_lines(caught):
+        write(line, sys.stderr)
     if not modes:
         raise InputError("the input holds no frame")
     if args.bop is not None:
