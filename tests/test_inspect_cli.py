@@ -161,3 +161,14 @@ def test_another_units_no_contact_image_is_named_but_the_scene_still_read(capsys
     assert not any(s["light"]["another_unit"] or s["light_problems"] for s in own["sensors"])
     _, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts), "--background", str(other))
     assert "  light warning: image 2: its no-contact image looks like another DIGIT unit's" in out
+
+
+def test_a_bgr_image_is_named_as_such_not_as_another_units(capsys, scene, artifacts):
+    """A BGR image agrees with no change of light from its no-contact image; its own problem says why."""
+    bgr = read_tactile_image(scene / "Image_heatmap_2.png")[..., ::-1]
+    write_tactile_image(scene / "Image_heatmap_2.png", np.ascontiguousarray(bgr))
+    code, reading = run_json(capsys, scene, artifacts)
+    assert code == 1
+    sensor = reading["sensors"][2]
+    assert "image 2 looks like BGR" in sensor["problems"][0]
+    assert not any("another DIGIT unit" in p for p in sensor["light_problems"])

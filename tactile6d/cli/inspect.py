@@ -123,8 +123,10 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
         except InputError as exc:
             patch = None
             problems.append(f"image {i}: {exc}")
+        # A grey or BGR image disagrees with any no-contact image: its own problem says why, not the unit's.
+        unit = None if problem is not None else units[i]
         sensors.append(SensorReading(image, np.asarray(background), aligned[i], None if fits is None else fits[i],
-                                     patch, problems, units[i]))
+                                     patch, problems, unit))
     return SceneReading(sensors, scene_problems)
 
 
@@ -166,7 +168,8 @@ def sensor_lines(i: int, reading: SensorReading) -> list[str]:
         gain = "/".join(f"{v:.2f}" for v in fit.gain)
         gamma = "/".join(f"{v:.2f}" for v in fit.gamma)
         state = "aligned" if fit.applied else "left as given"
-        lines.append(f"  light: gain {gain}, gamma {gamma} (R/G/B) against its no-contact image; {state}")
+        lines.append(f"  light: gain {gain}, gamma {gamma} (R/G/B) against its no-contact image, which "
+                     f"{100 * fit.agreement:.0f} % of the image and {100 * fit.rim_agreement:.0f} % of its rim follow; {state}")
     lines += [f"  light warning: {p}" for p in reading.light_problems]
     lines += [f"  problem: {p}" for p in reading.problems]
     return lines
