@@ -28,6 +28,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("track",): ("track", "follow an object's pose over a stream of frames (numbered scene folders or a ROS 2 bag)"),
     ("inspect",): ("inspect", "what the estimator reads from one scene's images (light, contact patch, problems), with a figure"),
     ("identify",): ("identify", "which object of a library touches the sensors, and its pose (one scene folder)"),
+    ("calibrate-sensors",): ("calibrate_sensors", "each sensor's mounting offset, from grasps of a known object at a known pose"),
     ("add-object",): ("add_object", "a mesh file of yours as a library object: check it, configure it, make its artifacts"),
 }
 

@@ -4,7 +4,8 @@ Each scene folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line
 frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``background_<i>.png``
 (sensor i's own no-contact image, for every sensor): the images are then read against those, as a note
 on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
-order), which wins. One sensor only is estimated with a ``warning:`` line on stderr (the pose is
+order), which wins. ``--sensor-offsets FILE`` corrects the sensor poses by each sensor's mounting offset
+(``tactile6d calibrate-sensors``) before anything reads them. One sensor only is estimated with a ``warning:`` line on stderr (the pose is
 under-determined). Scenes are given with
 ``--scene DIR [DIR ...]`` and/or ``--scenes-root DIR`` (every folder under DIR that holds a
 ``poses_sensors.txt``, in natural order: ``triplet_2`` before ``triplet_10``). All scenes run in one
@@ -64,6 +65,7 @@ from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, 
 from tactile6d.estimation import confidence
 from tactile6d.estimation.estimator import Estimate, Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.estimation.sensor_offsets import SensorOffsets, apply_sensor_offsets
 from tactile6d.perception import photometric
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 
@@ -98,6 +100,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                              f"in the scenes given (pixel median; at least {MIN_SCENES_FOR_BACKGROUND} scenes "
                              "that touch in different places); default: each scene's background_<i>.png, else "
                              "render.background")
+    parser.add_argument("--sensor-offsets", default=None, metavar="FILE",
+                        help="each sensor's mounting offset, applied to poses_sensors.txt's poses before anything "
+                             "else (JSON from `tactile6d calibrate-sensors`)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
@@ -161,10 +166,11 @@ def object_of(scene: Path, object_arg: str, known: KnownObjects) -> str:
 
 
 class EstimatorCache:
-    """One Estimator per object, loaded on first use; a load that failed fails again without retrying."""
+    """One Estimator per object, loaded on first use; a load that failed fails again without retrying.
+    ``offsets``: the hand's sensor offsets (``tactile6d calibrate-sensors``), which ``sensor_poses`` applies."""
 
-    def __init__(self, known: KnownObjects, cfg, background: np.ndarray | None):
-        self.known, self.cfg, self.background = known, cfg, background
+    def __init__(self, known: KnownObjects, cfg, background: np.ndarray | None, offsets: SensorOffsets | None = None):
+        self.known, self.cfg, self.background, self.offsets = known, cfg, background, offsets
         self._loaded: dict[str, tuple[Estimator | Tactile6dError, float]] = {}
         self._reported: set[str] = set()
 
@@ -185,6 +191,10 @@ class EstimatorCache:
         if isinstance(loaded, Tactile6dError):
             raise loaded
         return loaded
+
+    def sensor_poses(self, T_world_sensors: np.ndarray) -> np.ndarray:
+        """The sensor poses as read, corrected by the hand's offsets when there are any."""
+        return T_world_sensors if self.offsets is None else apply_sensor_offsets(T_world_sensors, self.offsets)
 
     def get(self, name: str) -> tuple[Estimator, float]:
         """The object's Estimator and the seconds its loading took, counted once: 0.0 on later calls."""
@@ -250,7 +260,7 @@ def estimate_scene(scene: Path, name: str, cache: EstimatorCache) -> tuple[Estim
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnderdeterminedPoseWarning)
         warnings.simplefilter("always", photometric.LightWarning)
-        result = estimator.estimate(T_world_sensors, images, backgrounds)
+        result = estimator.estimate(cache.sensor_poses(T_world_sensors), images, backgrounds)
     for line in warnings_to_lines(scene, caught):
         write(line, sys.stderr)
     return result, load_seconds
@@ -378,7 +388,8 @@ def main(argv: list[str]) -> int:
         write(note, sys.stderr)
     else:
         background = read_background_images(args.background) if args.background else None
-    cache = EstimatorCache(known, cfg, background)
+    offsets = SensorOffsets.read(args.sensor_offsets) if args.sensor_offsets else None
+    cache = EstimatorCache(known, cfg, background, offsets)
 
     if len(scenes) == 1 and args.scenes_root is None:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).

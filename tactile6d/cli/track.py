@@ -13,6 +13,9 @@ Input, one of:
   sensor). Frames follow the first image topic; the others are matched within ``--sync-tolerance``
   seconds (``tactile6d.data.rosbag_io``).
 
+``--sensor-offsets FILE`` corrects every frame's sensor poses by each sensor's mounting offset (``tactile6d
+calibrate-sensors``) before the tracker sees them.
+
 Output: one line per frame on stdout: ``<frame> <stamp> <mode> x y z ax ay az angle <confidence>`` (mode
 ``redetect``, ``update`` or ``hold``; stamp and confidence ``-`` when unknown), or with ``--json`` one
 JSON object per frame (pose as a 4x4 matrix, mode, the re-detection's reason, confidence, whether it is
@@ -50,6 +53,7 @@ from tactile6d.core.geometry import pose_to_line, text_to_poses
 from tactile6d.data import bop, rosbag_io, sequence_dirs
 from tactile6d.data.hdf5 import read_background_images
 from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.estimation.sensor_offsets import SensorOffsets
 from tactile6d.estimation.tracker import TrackedFrame, Tracker, TrackSettings
 from tactile6d.perception import photometric
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
@@ -74,6 +78,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="with --bag: seconds within which the other sensors' images join a frame")
     parser.add_argument("--fps", type=float, default=30.0,
                         help="frame rate assumed for stamps when the input has none (a sequence without frames.json)")
+    parser.add_argument("--sensor-offsets", default=None, metavar="FILE",
+                        help="each sensor's mounting offset, applied to every frame's sensor poses (JSON from "
+                             "`tactile6d calibrate-sensors`)")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
                         help="the sensors' no-contact image(s): one for every sensor or one per sensor (default: "
                              "the sequence folder's background_<i>.png, else render.background)")
@@ -153,7 +160,9 @@ def main(argv: list[str]) -> int:
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     background = read_background_images(args.background) if args.background else None
-    estimator = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background).load(args.object)
+    offsets = SensorOffsets.read(args.sensor_offsets) if args.sensor_offsets else None
+    cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, offsets)
+    estimator = cache.load(args.object)
     stamps, poses, rows, seconds, modes, ambiguous = [], [], [], [], [], 0
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
@@ -163,7 +172,7 @@ def main(argv: list[str]) -> int:
         def stream():
             for index, stamp, T, images, frame_backgrounds in frames_of(args):
                 read.append((index, stamp))
-                yield T, images, None if background is not None else frame_backgrounds
+                yield cache.sensor_poses(T), images, None if background is not None else frame_backgrounds
 
         for answer in tracker.track(stream()):
             index, stamp = read.popleft()

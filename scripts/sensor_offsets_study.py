@@ -1,0 +1,146 @@
+"""What calibrating a hand's sensor offsets buys: grasps of known objects at known poses, then unknown ones.
+
+    python scripts/sensor_offsets_study.py --artifacts ART --calibration CAL.h5 --test TEST.h5 [--hands 3]
+        [--bias-mm 1.5 --bias-deg 1.5 --jitter-mm 0.1 --jitter-deg 0.1] [--grasps 10] [override ...]
+
+CAL.h5 and TEST.h5 are two generated scene sets of their own seeds (``make_scenes``' ``scenes`` files, e.g. the
+validation kind with ``scenes.validation.seed=...``). For each of ``--hands`` simulated hands, each sensor (by
+its place in the sensor order) gets a bias of its own, drawn once (Gaussian, ``--bias-mm`` and ``--bias-deg``
+per axis in the sensor's frame), and every scene a jitter on top (``--jitter-*``): the sensor poses the hand
+reports are the true ones moved by both, the images those of the true poses. The first ``--grasps`` scenes of
+CAL are the calibration: their object poses known, ``sensor_offsets.fit_sensor_offsets`` fits each sensor's
+offset (prior: the config's ``sensors`` sigmas). Every scene of TEST is then estimated (default estimator,
+images and no-contact images) through
+
+- the poses as reported (``sensors`` as configured),
+- the reported poses corrected by the fitted offsets (``sensors`` as configured),
+- the same, with ``sensors.pose_sigma_mm``/``_deg`` lowered to ``--after-mm``/``--after-deg``,
+- the true poses (what an exact hand would give; ``sensors`` as configured).
+
+Printed per hand: the offsets' remaining error (the gel centre's shift, mm, mean over sensors) against the
+bias, the fitted posterior sigmas, and each row's positional error #1, mean (median) cm, with how many scenes
+are 1 cm or more off. A diagnostic: it writes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
+
+from tactile6d.core.config import compose_config  # noqa: E402
+from tactile6d.core.geometry import make_pose, rotvec_to_rotmat  # noqa: E402
+from tactile6d.core.sensor import GEL_CENTER  # noqa: E402
+from tactile6d.data.hdf5 import read_artifact  # noqa: E402
+from tactile6d.estimation.estimator import Estimator  # noqa: E402
+from tactile6d.estimation.sensor_offsets import KnownGrasp, apply_sensor_offsets, fit_sensor_offsets  # noqa: E402
+from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
+
+
+def draw_errors(shape: tuple[int, ...], sigma_m: float, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
+    """(*shape, 4, 4) pose errors, Gaussian per axis in the sensor's frame."""
+    return make_pose(rotvec_to_rotmat(rng.normal(0.0, sigma_rad, shape + (3,)).reshape(-1, 3)),
+                     rng.normal(0.0, sigma_m, shape + (3,)).reshape(-1, 3)).reshape(shape + (4, 4))
+
+
+def gel_shift_mm(error: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) sensor-frame errors -> how far each moves the gel centre, mm."""
+    moved = np.einsum("...ab,b->...a", error[..., :3, :3], GEL_CENTER) + error[..., :3, 3]
+    return 1000.0 * np.linalg.norm(moved - GEL_CENTER, axis=-1)
+
+
+def axial_and_sideways_mm(error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(L, 4, 4) sensor-frame errors -> the gel centre's shift along each sensor's axis (x) and sideways (y, z), mm."""
+    moved = np.einsum("lab,b->la", error[:, :3, :3], GEL_CENTER) + error[:, :3, 3] - GEL_CENTER
+    return 1000.0 * np.abs(moved[:, 0]), 1000.0 * np.linalg.norm(moved[:, 1:], axis=1)
+
+
+def summary(errors: list[float]) -> str:
+    e = np.asarray(errors)
+    return f"{e.mean():.2f} ({np.median(e):.2f}) cm, {int(np.sum(e >= 1.0))} of {len(e)} over 1 cm"
+
+
+class Estimators:
+    """One estimator per (object, settings)."""
+
+    def __init__(self, artifacts: str, cfgs: dict):
+        self.artifacts, self.cfgs, self.cache = artifacts, cfgs, {}
+
+    def get(self, obj: str, which: str) -> Estimator:
+        if (obj, which) not in self.cache:
+            self.cache[obj, which] = Estimator.from_artifacts(obj, self.artifacts, self.cfgs[which])
+        return self.cache[obj, which]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--artifacts", required=True)
+    parser.add_argument("--calibration", required=True, help="scenes file whose first --grasps scenes calibrate")
+    parser.add_argument("--test", required=True, help="scenes file estimated after the calibration")
+    parser.add_argument("--grasps", type=int, default=10)
+    parser.add_argument("--hands", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--bias-mm", type=float, default=1.5)
+    parser.add_argument("--bias-deg", type=float, default=1.5)
+    parser.add_argument("--jitter-mm", type=float, default=0.1)
+    parser.add_argument("--jitter-deg", type=float, default=0.1)
+    parser.add_argument("--after-mm", type=float, default=0.5)
+    parser.add_argument("--after-deg", type=float, default=0.5)
+    parser.add_argument("overrides", nargs="*")
+    args = parser.parse_args(argv)
+    cfg = compose_config(args.overrides)
+    cfgs = {"default": cfg, "after": compose_config(args.overrides + [f"sensors.pose_sigma_mm={args.after_mm}",
+                                                                       f"sensors.pose_sigma_deg={args.after_deg}"])}
+    estimators = Estimators(args.artifacts, cfgs)
+    cal, test = read_artifact(args.calibration, "scenes"), read_artifact(args.test, "scenes")
+    n_cal, L = min(args.grasps, len(cal["names"])), int(np.asarray(cal["T_world_sensors"]).shape[1])
+    sigma_m, sigma_rad = 1e-3 * cfg.sensors.pose_sigma_mm, np.radians(cfg.sensors.pose_sigma_deg)
+    rng = np.random.default_rng(args.seed)
+    rows = {k: [] for k in ("reported", "corrected", "corrected, sigmas lowered", "true")}
+    for hand in range(args.hands):
+        bias = draw_errors((L,), 1e-3 * args.bias_mm, np.radians(args.bias_deg), rng)
+        grasps = []
+        for s in range(n_cal):
+            obj = str(cal["objects"][s])
+            error = bias @ draw_errors((L,), 1e-3 * args.jitter_mm, np.radians(args.jitter_deg), rng)
+            reported = np.asarray(cal["T_world_sensors"][s]) @ error
+            est = estimators.get(obj, "default")
+            contacts = est.contacts(reported, cal["images"][s], scene_backgrounds(cal, s))
+            grasps.append(KnownGrasp(est.surface, np.asarray(cal["T_world_object"][s]), reported, contacts))
+        offsets = fit_sensor_offsets(grasps, sigma_m, sigma_rad, cfg.rank.refine_normal_weight,
+                                     int(cfg.rank.refine_patch_points), float(cfg.rank.refine_patch_weight))
+        left = gel_shift_mm(bias @ offsets.offsets)
+        before, after = axial_and_sideways_mm(bias), axial_and_sideways_mm(bias @ offsets.offsets)
+        print(f"hand {hand}: the bias moves each gel centre {gel_shift_mm(bias).round(2)} mm (along the sensor's "
+              f"axis {before[0].round(2)}, sideways {before[1].round(2)}); after the offsets "
+              f"{gel_shift_mm(bias @ offsets.offsets).round(2)} mm (along {after[0].round(2)}, sideways "
+              f"{after[1].round(2)}); posterior sigma of the gel along the axis "
+              f"{np.round(1000 * offsets.gel_sigma_m[:, 0], 2)} mm, sideways "
+              f"{np.round(1000 * offsets.gel_sigma_m[:, 1:].max(axis=1), 2)} mm; contact residual RMS "
+              f"{offsets.residual_before_mm.round(2)} -> {offsets.residual_mm.round(2)} mm; grasps {offsets.grasps}",
+              flush=True)
+        errors = {k: [] for k in rows}
+        for s in range(len(test["names"])):
+            obj, truth = str(test["objects"][s]), np.asarray(test["T_world_object"][s])
+            true_T = np.asarray(test["T_world_sensors"][s])
+            reported = true_T @ bias @ draw_errors((L,), 1e-3 * args.jitter_mm, np.radians(args.jitter_deg), rng)
+            images, backgrounds = test["images"][s], scene_backgrounds(test, s)
+            corrected = apply_sensor_offsets(reported, offsets)
+            for key, T, which in (("reported", reported, "default"), ("corrected", corrected, "default"),
+                                  ("corrected, sigmas lowered", corrected, "after"), ("true", true_T, "default")):
+                best = estimators.get(obj, which).estimate(T, images, backgrounds).best
+                errors[key].append(float(100 * np.linalg.norm(best[:3, 3] - truth[:3, 3])))
+        for key, e in errors.items():
+            rows[key] += e
+            print(f"hand {hand}: {key:26s} {summary(e)}", flush=True)
+    for key, e in rows.items():
+        print(f"all hands: {key:26s} {summary(e)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
