@@ -76,11 +76,72 @@ class Estimators:
         return self.cache[obj, which]
 
 
+def calibrate(cal, n_grasps: int, bias: np.ndarray, args, estimators: Estimators, cfg, rng):
+    """The offsets fitted from the first ``n_grasps`` scenes of ``cal`` seen through ``bias`` and a jitter."""
+    L = len(bias)
+    grasps = []
+    for s in range(n_grasps):
+        obj = str(cal["objects"][s])
+        error = bias @ draw_errors((L,), 1e-3 * args.jitter_mm, np.radians(args.jitter_deg), rng)
+        reported = np.asarray(cal["T_world_sensors"][s]) @ error
+        est = estimators.get(obj, "default")
+        contacts = est.contacts(reported, cal["images"][s], scene_backgrounds(cal, s))
+        grasps.append(KnownGrasp(est.surface, np.asarray(cal["T_world_object"][s]), reported, contacts))
+    sigma_m, sigma_rad = 1e-3 * cfg.sensors.pose_sigma_mm, np.radians(cfg.sensors.pose_sigma_deg)
+    return fit_sensor_offsets(grasps, sigma_m, sigma_rad, cfg.rank.refine_normal_weight,
+                              int(cfg.rank.refine_patch_points), float(cfg.rank.refine_patch_weight))
+
+
+def describe(label: str, bias: np.ndarray, offsets) -> str:
+    before, after = axial_and_sideways_mm(bias), axial_and_sideways_mm(bias @ offsets.offsets)
+    return (f"{label}: the bias moves each gel centre {gel_shift_mm(bias).round(2)} mm (along the sensor's "
+            f"axis {before[0].round(2)}, sideways {before[1].round(2)}); after the offsets "
+            f"{gel_shift_mm(bias @ offsets.offsets).round(2)} mm (along {after[0].round(2)}, sideways "
+            f"{after[1].round(2)}); posterior sigma of the gel along the axis "
+            f"{np.round(1000 * offsets.gel_sigma_m[:, 0], 2)} mm, sideways "
+            f"{np.round(1000 * offsets.gel_sigma_m[:, 1:].max(axis=1), 2)} mm; contact residual RMS "
+            f"{offsets.residual_before_mm.round(2)} -> {offsets.residual_mm.round(2)} mm; grasps {offsets.grasps}")
+
+
+def track_sequences(path: str, cal, n_grasps: int, args, estimators: Estimators, cfg, rng) -> None:
+    """Each sequence's hand bias (drawn by make_sequences) calibrated from the CAL grasps, then the sequence tracked
+    through the poses as reported, corrected and true: median (mean) positional error over frames, and the
+    longest run over 2 cm."""
+    from dataclasses import replace
+
+    from tactile6d.estimation.tracker import Tracker, TrackSettings
+    from tactile6d.evaluation.tracking_accuracy import longest_over, track_frames
+
+    seqs = read_artifact(path, "sequences")
+    fps = float(np.asarray(seqs["fps"]).reshape(-1)[0])
+    pooled = {k: [] for k in ("reported", "corrected", "true")}
+    for q in range(len(seqs["names"])):
+        obj, truth = str(seqs["objects"][q]), np.asarray(seqs["T_world_object"][q])
+        bias = make_pose(rotvec_to_rotmat(np.asarray(seqs["pose_bias_rotvec"][q])),
+                         np.asarray(seqs["pose_bias_translation"][q]))
+        offsets = calibrate(cal, n_grasps, bias, args, estimators, cfg, rng)
+        print(describe(f"sequence {q} ({obj})", bias, offsets), flush=True)
+        reported, images = np.asarray(seqs["T_world_sensors"][q]), np.asarray(seqs["images"][q])
+        for key, T in (("reported", reported), ("corrected", apply_sensor_offsets(reported, offsets)),
+                       ("true", np.asarray(seqs["T_world_sensors_true"][q]))):
+            with Tracker(estimators.get(obj, "default"), replace(TrackSettings.from_cfg(cfg.track), threads=1)) as tracker:
+                poses = np.stack([a.pose for a in track_frames(tracker.update, T, images)])
+            error = 100 * np.linalg.norm(poses[:, :3, 3] - truth[:, :3, 3], axis=1)
+            pooled[key].append(error)
+            print(f"sequence {q} ({obj}) {key:10s} {np.nanmedian(error):.2f} ({np.nanmean(error):.2f}) cm, longest "
+                  f"over 2 cm {longest_over(error / 100, 0.02, fps):.2f} s", flush=True)
+    for key, e in pooled.items():
+        longest = max(longest_over(x / 100, 0.02, fps) for x in e)
+        e = np.concatenate(e)
+        print(f"all sequences: {key:10s} {np.nanmedian(e):.2f} ({np.nanmean(e):.2f}) cm, longest over 2 cm {longest:.2f} s")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--artifacts", required=True)
     parser.add_argument("--calibration", required=True, help="scenes file whose first --grasps scenes calibrate")
-    parser.add_argument("--test", required=True, help="scenes file estimated after the calibration")
+    parser.add_argument("--test", default=None, help="scenes file estimated after the calibration")
+    parser.add_argument("--sequences", default=None, help="sequences file (make_sequences) tracked after it")
     parser.add_argument("--grasps", type=int, default=10)
     parser.add_argument("--hands", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
@@ -96,33 +157,19 @@ def main(argv: list[str] | None = None) -> int:
     cfgs = {"default": cfg, "after": compose_config(args.overrides + [f"sensors.pose_sigma_mm={args.after_mm}",
                                                                        f"sensors.pose_sigma_deg={args.after_deg}"])}
     estimators = Estimators(args.artifacts, cfgs)
-    cal, test = read_artifact(args.calibration, "scenes"), read_artifact(args.test, "scenes")
+    cal = read_artifact(args.calibration, "scenes")
     n_cal, L = min(args.grasps, len(cal["names"])), int(np.asarray(cal["T_world_sensors"]).shape[1])
-    sigma_m, sigma_rad = 1e-3 * cfg.sensors.pose_sigma_mm, np.radians(cfg.sensors.pose_sigma_deg)
     rng = np.random.default_rng(args.seed)
+    if args.sequences:
+        track_sequences(args.sequences, cal, n_cal, args, estimators, cfg, rng)
+    if not args.test:
+        return 0
+    test = read_artifact(args.test, "scenes")
     rows = {k: [] for k in ("reported", "corrected", "corrected, sigmas lowered", "true")}
     for hand in range(args.hands):
         bias = draw_errors((L,), 1e-3 * args.bias_mm, np.radians(args.bias_deg), rng)
-        grasps = []
-        for s in range(n_cal):
-            obj = str(cal["objects"][s])
-            error = bias @ draw_errors((L,), 1e-3 * args.jitter_mm, np.radians(args.jitter_deg), rng)
-            reported = np.asarray(cal["T_world_sensors"][s]) @ error
-            est = estimators.get(obj, "default")
-            contacts = est.contacts(reported, cal["images"][s], scene_backgrounds(cal, s))
-            grasps.append(KnownGrasp(est.surface, np.asarray(cal["T_world_object"][s]), reported, contacts))
-        offsets = fit_sensor_offsets(grasps, sigma_m, sigma_rad, cfg.rank.refine_normal_weight,
-                                     int(cfg.rank.refine_patch_points), float(cfg.rank.refine_patch_weight))
-        left = gel_shift_mm(bias @ offsets.offsets)
-        before, after = axial_and_sideways_mm(bias), axial_and_sideways_mm(bias @ offsets.offsets)
-        print(f"hand {hand}: the bias moves each gel centre {gel_shift_mm(bias).round(2)} mm (along the sensor's "
-              f"axis {before[0].round(2)}, sideways {before[1].round(2)}); after the offsets "
-              f"{gel_shift_mm(bias @ offsets.offsets).round(2)} mm (along {after[0].round(2)}, sideways "
-              f"{after[1].round(2)}); posterior sigma of the gel along the axis "
-              f"{np.round(1000 * offsets.gel_sigma_m[:, 0], 2)} mm, sideways "
-              f"{np.round(1000 * offsets.gel_sigma_m[:, 1:].max(axis=1), 2)} mm; contact residual RMS "
-              f"{offsets.residual_before_mm.round(2)} -> {offsets.residual_mm.round(2)} mm; grasps {offsets.grasps}",
-              flush=True)
+        offsets = calibrate(cal, n_cal, bias, args, estimators, cfg, rng)
+        print(describe(f"hand {hand}", bias, offsets), flush=True)
         errors = {k: [] for k in rows}
         for s in range(len(test["names"])):
             obj, truth = str(test["objects"][s]), np.asarray(test["T_world_object"][s])

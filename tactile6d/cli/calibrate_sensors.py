@@ -126,16 +126,16 @@ def report(offsets: SensorOffsets, out: Path, prior_gel_sigma: np.ndarray) -> st
     moved = np.einsum("lab,b->la", offsets.offsets[:, :3, :3], GEL_CENTER) + offsets.offsets[:, :3, 3] - GEL_CENTER
     along, sideways = 1000 * offsets.gel_sigma_m[:, 0], 1000 * offsets.gel_sigma_m[:, 1:].max(axis=1)
     lines = [f"sensor offsets written to {out} (T_world_sensor @ offset, in the sensor's frame)",
-             "sensor grasps   translation (mm)      rotation (deg)        gel moved  off the surface    "
-             "still uncertain (1 sigma): gel along axis, sideways"]
+             f"{'sensor':>6}  {'grasps':>6}  {'translation (mm)':<20}  {'rotation (deg)':<20}  {'gel moved':>9}  "
+             f"{'off the surface (RMS)':<21}  uncertain (1 sigma): gel along the axis, sideways"]
     for i in range(offsets.n_sensors):
         if offsets.grasps[i] == 0:
-            lines.append(f"{i:>6} {0:>6}   no contact read in any grasp: no offset")
+            lines.append(f"{i:>6}  {0:>6}  no contact read in any grasp: no offset")
             continue
         lines.append(
-            f"{i:>6} {offsets.grasps[i]:>6}   {t[i, 0]:+5.2f} {t[i, 1]:+5.2f} {t[i, 2]:+5.2f}     "
-            f"{r[i, 0]:+5.2f} {r[i, 1]:+5.2f} {r[i, 2]:+5.2f}     {1000 * np.linalg.norm(moved[i]):5.2f} mm  "
-            f"{offsets.residual_before_mm[i]:5.2f} -> {offsets.residual_mm[i]:4.2f} mm   "
+            f"{i:>6}  {offsets.grasps[i]:>6}  {t[i, 0]:+6.2f}{t[i, 1]:+7.2f}{t[i, 2]:+7.2f}  "
+            f"{r[i, 0]:+6.2f}{r[i, 1]:+7.2f}{r[i, 2]:+7.2f}  {1000 * np.linalg.norm(moved[i]):6.2f} mm  "
+            f"{offsets.residual_before_mm[i]:5.2f} -> {offsets.residual_mm[i]:4.2f} mm{'':6}  "
             f"{along[i]:.2f} mm, {sideways[i]:.2f} mm")
     if np.any(sideways[offsets.grasps > 0] > 0.5 * 1000 * prior_gel_sigma[1:].max()):
         lines.append("note: a press tells a sensor's offset along its axis; a sideways one shows only where the "
