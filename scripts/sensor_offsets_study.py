@@ -92,6 +92,37 @@ def calibrate(cal, n_grasps: int, bias: np.ndarray, args, estimators: Estimators
                               int(cfg.rank.refine_patch_points), float(cfg.rank.refine_patch_weight))
 
 
+def self_calibrate(cal, n_grasps: int, bias: np.ndarray, args, estimators: Estimators, cfg, rng):
+    """The offsets fitted without knowing any object pose: the first ``n_grasps`` scenes of ``cal`` estimated
+    through the poses as corrected so far, their confident best poses taken for known, the offsets refitted;
+    ``args.rounds`` times. -> (offsets (L, 4, 4) composed over the rounds, the scenes used in the last)."""
+    L = len(bias)
+    reported = [np.asarray(cal["T_world_sensors"][s]) @ bias @ draw_errors((L,), 1e-3 * args.jitter_mm,
+                                                                           np.radians(args.jitter_deg), rng)
+                for s in range(n_grasps)]
+    sigma_m, sigma_rad = 1e-3 * cfg.sensors.pose_sigma_mm, np.radians(cfg.sensors.pose_sigma_deg)
+    total = np.repeat(np.eye(4)[None], L, axis=0)
+    for _ in range(args.rounds):
+        grasps = []
+        for s in range(n_grasps):
+            obj = str(cal["objects"][s])
+            est = estimators.get(obj, "default")
+            T = apply_sensor_offsets(reported[s], total)
+            result = est.estimate(T, cal["images"][s], scene_backgrounds(cal, s))
+            if result.confidence is not None and result.confidence >= args.self_confidence and not result.ambiguous:
+                grasps.append(KnownGrasp(est.surface, result.best, T, result.contacts))
+        step = fit_sensor_offsets(grasps, sigma_m, sigma_rad, cfg.rank.refine_normal_weight,
+                                  int(cfg.rank.refine_patch_points), float(cfg.rank.refine_patch_weight))
+        total = total @ step.offsets
+    return replace_offsets(step, total), len(grasps)
+
+
+def replace_offsets(offsets, total: np.ndarray):
+    from dataclasses import replace
+
+    return replace(offsets, offsets=total)
+
+
 def describe(label: str, bias: np.ndarray, offsets) -> str:
     before, after = axial_and_sideways_mm(bias), axial_and_sideways_mm(bias @ offsets.offsets)
     return (f"{label}: the bias moves each gel centre {gel_shift_mm(bias).round(2)} mm (along the sensor's "
@@ -149,6 +180,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bias-deg", type=float, default=1.5)
     parser.add_argument("--jitter-mm", type=float, default=0.1)
     parser.add_argument("--jitter-deg", type=float, default=0.1)
+    parser.add_argument("--self", action="store_true", dest="self_calibrate",
+                        help="fit the offsets from the CAL scenes' own estimates, no object pose known")
+    parser.add_argument("--rounds", type=int, default=3, help="with --self: estimate-and-refit rounds")
+    parser.add_argument("--self-confidence", type=float, default=0.9, help="with --self: the estimates kept")
     parser.add_argument("--after-mm", type=float, default=0.5)
     parser.add_argument("--after-deg", type=float, default=0.5)
     parser.add_argument("overrides", nargs="*")
@@ -168,7 +203,11 @@ def main(argv: list[str] | None = None) -> int:
     rows = {k: [] for k in ("reported", "corrected", "corrected, sigmas lowered", "true")}
     for hand in range(args.hands):
         bias = draw_errors((L,), 1e-3 * args.bias_mm, np.radians(args.bias_deg), rng)
-        offsets = calibrate(cal, n_cal, bias, args, estimators, cfg, rng)
+        if args.self_calibrate:
+            offsets, used = self_calibrate(cal, n_cal, bias, args, estimators, cfg, rng)
+            print(f"hand {hand}: {used} of {n_cal} estimates confident enough in the last round", flush=True)
+        else:
+            offsets = calibrate(cal, n_cal, bias, args, estimators, cfg, rng)
         print(describe(f"hand {hand}", bias, offsets), flush=True)
         errors = {k: [] for k in rows}
         for s in range(len(test["names"])):

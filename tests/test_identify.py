@@ -539,3 +539,30 @@ def test_identify_reads_each_sensor_against_its_own_background(capsys, units_lib
     code, out, err = identify_json(capsys, root, "scene", "--background", *files[:2])
     assert code == 2 and out == "" and err.count("\n") == 1
     assert err.startswith("error: 2 background images for 3 sensors")
+
+
+def test_identify_applies_the_sensor_offsets(capsys, units_library, tmp_path):
+    """``--sensor-offsets`` reads the scene as if the corrected poses had been written into it."""
+    import json
+    import shutil
+
+    from tactile6d.estimation.sensor_offsets import SensorOffsets, apply_sensor_offsets
+
+    root = units_library
+    rng = np.random.default_rng(0)
+    E = g.make_pose(g.rotvec_to_rotmat(rng.normal(0, 0.02, (3, 3))), rng.normal(0, 0.001, (3, 3)))
+    offsets = SensorOffsets(E, np.full((3, 3), 1e-4), np.full((3, 3), 1e-3), np.full(3, 5), np.zeros(3), np.ones(3))
+    offsets.write(tmp_path / "offsets.json")
+    corrected = root / "scene_corrected"
+    shutil.copytree(root / "scene", corrected, dirs_exist_ok=True)
+    reported = g.text_to_poses((root / "scene" / "poses_sensors.txt").read_text())
+    (corrected / "poses_sensors.txt").write_text(g.poses_to_text(apply_sensor_offsets(reported, offsets)))
+    files = [str(root / f"unit_{i}.png") for i in range(3)]
+    code, applied, err = identify_json(capsys, root, "scene", "--background", *files,
+                                       "--sensor-offsets", str(tmp_path / "offsets.json"))
+    assert code == 0, err
+    code, written, err = identify_json(capsys, root, "scene_corrected", "--background", *files)
+    assert code == 0, err
+    applied, written = json.loads(applied)["objects"], json.loads(written)["objects"]
+    assert [o["name"] for o in applied] == [o["name"] for o in written]
+    np.testing.assert_allclose([o["pose"] for o in applied], [o["pose"] for o in written], atol=1e-9)

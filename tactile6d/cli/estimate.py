@@ -100,9 +100,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                              f"in the scenes given (pixel median; at least {MIN_SCENES_FOR_BACKGROUND} scenes "
                              "that touch in different places); default: each scene's background_<i>.png, else "
                              "render.background")
-    parser.add_argument("--sensor-offsets", default=None, metavar="FILE",
-                        help="each sensor's mounting offset, applied to poses_sensors.txt's poses before anything "
-                             "else (JSON from `tactile6d calibrate-sensors`)")
+    add_sensor_offsets_argument(parser, "poses_sensors.txt's poses")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
@@ -113,6 +111,18 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     if not args.scene and args.scenes_root is None:
         parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
     return args
+
+
+def add_sensor_offsets_argument(parser: argparse.ArgumentParser, poses: str) -> None:
+    """``--sensor-offsets FILE``: the hand's offsets from ``tactile6d calibrate-sensors``, applied to ``poses``."""
+    parser.add_argument("--sensor-offsets", default=None, metavar="FILE",
+                        help=f"each sensor's mounting offset, applied to {poses} before anything else (JSON from "
+                             "`tactile6d calibrate-sensors`)")
+
+
+def read_sensor_offsets(args: argparse.Namespace) -> SensorOffsets | None:
+    """``--sensor-offsets``' file read, or None when not given."""
+    return SensorOffsets.read(args.sensor_offsets) if args.sensor_offsets else None
 
 
 def split_overrides(words: list[str] | None, overrides: list[str]) -> tuple[list[str] | None, list[str]]:
@@ -388,8 +398,7 @@ def main(argv: list[str]) -> int:
         write(note, sys.stderr)
     else:
         background = read_background_images(args.background) if args.background else None
-    offsets = SensorOffsets.read(args.sensor_offsets) if args.sensor_offsets else None
-    cache = EstimatorCache(known, cfg, background, offsets)
+    cache = EstimatorCache(known, cfg, background, read_sensor_offsets(args))
 
     if len(scenes) == 1 and args.scenes_root is None:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).

@@ -12,7 +12,8 @@ time per step. ``--json``: one JSON object (``Identification.to_dict``). Errors:
 exit status 2; objects without artifacts are all named in that one line. The sensors' no-contact images:
 ``--background`` (one file for every sensor, or one per sensor in sensor order), else the scene folder's
 ``background_<i>.png`` when it holds them (said on stderr), else ``render.background``; as for
-``tactile6d estimate``, one sensor only gives a ``warning:`` line.
+``tactile6d estimate``, one sensor only gives a ``warning:`` line. ``--sensor-offsets FILE`` corrects the sensor
+poses by the hand's offsets (``tactile6d calibrate-sensors``) first.
 
 Config overrides (``key=value``) pass through, e.g. ``identify.screen.N=1000`` or
 ``identify.weights=[1,1,10]``.
@@ -26,7 +27,8 @@ import sys
 import warnings
 from pathlib import Path
 
-from tactile6d.cli.estimate import is_override, scene_backgrounds, split_overrides, warnings_to_lines
+from tactile6d.cli.estimate import (add_sensor_offsets_argument, is_override, read_sensor_offsets, scene_backgrounds,
+                                    split_overrides, warnings_to_lines)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
@@ -34,6 +36,7 @@ from tactile6d.core.geometry import pose_to_line
 from tactile6d.data.hdf5 import read_background_images, read_scene_dir
 from tactile6d.estimation.identifier import Identification, Identifier
 from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 from tactile6d.perception.photometric import LightWarning
 
@@ -52,6 +55,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
                              "per sensor in sensor order; default: the scene's background_<i>.png, else "
                              "render.background")
+    add_sensor_offsets_argument(parser, "poses_sensors.txt's poses")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     args.background, args.overrides = split_overrides(args.background, list(args.overrides))
@@ -95,6 +99,9 @@ def main(argv: list[str]) -> int:
     known = KnownObjects(artifacts, cfg)
     objects, distractors, own = library_of(args.objects, known)
     T_world_sensors, images = read_scene_dir(args.scene)
+    offsets = read_sensor_offsets(args)
+    if offsets is not None:
+        T_world_sensors = apply_sensor_offsets(T_world_sensors, offsets)
     background = read_background_images(args.background) if args.background else None
     backgrounds, note = scene_backgrounds(Path(args.scene), len(T_world_sensors), background is not None)
     if note:

@@ -45,7 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d.cli.estimate import EstimatorCache, split_overrides, write
+from tactile6d.cli.estimate import (EstimatorCache, add_sensor_offsets_argument, read_sensor_offsets, split_overrides,
+                                    write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
@@ -53,7 +54,6 @@ from tactile6d.core.geometry import pose_to_line, text_to_poses
 from tactile6d.data import bop, rosbag_io, sequence_dirs
 from tactile6d.data.hdf5 import read_background_images
 from tactile6d.estimation.optimize import use_cpu_devices_for
-from tactile6d.estimation.sensor_offsets import SensorOffsets
 from tactile6d.estimation.tracker import TrackedFrame, Tracker, TrackSettings
 from tactile6d.perception import photometric
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
@@ -78,9 +78,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="with --bag: seconds within which the other sensors' images join a frame")
     parser.add_argument("--fps", type=float, default=30.0,
                         help="frame rate assumed for stamps when the input has none (a sequence without frames.json)")
-    parser.add_argument("--sensor-offsets", default=None, metavar="FILE",
-                        help="each sensor's mounting offset, applied to every frame's sensor poses (JSON from "
-                             "`tactile6d calibrate-sensors`)")
+    add_sensor_offsets_argument(parser, "every frame's sensor poses")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
                         help="the sensors' no-contact image(s): one for every sensor or one per sensor (default: "
                              "the sequence folder's background_<i>.png, else render.background)")
@@ -160,8 +158,7 @@ def main(argv: list[str]) -> int:
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     background = read_background_images(args.background) if args.background else None
-    offsets = SensorOffsets.read(args.sensor_offsets) if args.sensor_offsets else None
-    cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, offsets)
+    cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args))
     estimator = cache.load(args.object)
     stamps, poses, rows, seconds, modes, ambiguous = [], [], [], [], [], 0
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
