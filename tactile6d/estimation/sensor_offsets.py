@@ -1,7 +1,7 @@
 """Each sensor's mounting error, learnt from grasps of a known object at a known pose (not in the paper).
 
-A hand's forward kinematics puts each fingertip off by millimetres and degrees, and most of that error is
-a bias of its own per finger (how the sensor sits on its link, a joint's zero offset) that stays from one
+A hand's forward kinematics puts each fingertip off by millimetres and degrees, and much of that error is
+usually a bias of its own per finger (how the sensor sits on its link, a joint's zero offset) that stays from one
 grasp to the next. The estimator only knows how large the error may be (``sensors.pose_sigma_*``); a bias
 measured once can be taken out of every later grasp instead. Here each sensor's pose as the hand reports
 it is corrected by a fixed offset in the sensor's own frame,
@@ -20,14 +20,16 @@ matched to it, as ``refine.SurfaceFit.match``), normal residuals ``normal_weight
 (2 mm, 10 deg), and a Gaussian prior of the error the hand is declared to have (the same ``sensors``
 sigmas), so that what the scenes leave free (a sensor that only ever pressed flat faces says nothing of
 how far it slid along them) stays at zero. The object pose is known, so each sensor's offset is fitted
-alone, by damped Gauss-Newton on the right of its current offset.
+alone, by Gauss-Newton steps (clipped to 3 mm and 3 deg) on the right of its current offset.
 
 What a press tells, and what it does not: a sensor pressing a surface shows how far the surface is along
 its axis and how the surface is tilted under it, so each grasp fixes the offset's shift of the gel along
-the sensor's axis (x) and, on flat faces, its tilt (turns about y and z). A flat face looks the same
-wherever the gel slides over it, and a curved one nearly so (its tilt trades against the slide), so the
-sideways shift (y, z) and the twist about the axis are told only where the surface under the gel changes
-shape from grasp to grasp (edges, corners, rims), and otherwise stay at the prior's zero.
+the sensor's axis (x) and, on flat faces, its tilt (turns about y and z), the latter as far as the contact
+normals' noise (about 3 deg each: ``normal_weight`` against ``fit_noise``) lets the grasps outweigh the
+prior. A flat face looks the same wherever the gel slides over it, and a curved one nearly so (its tilt
+trades against the slide), so the sideways shift (y, z) and the twist about the axis are told only where
+the surface under the gel changes shape from grasp to grasp (edges, corners, rims), and otherwise stay at
+the prior's zero.
 ``SensorOffsets.gel_sigma_m`` and ``turn_sigma_rad`` say which: each offset's posterior standard deviation
 of the gel centre's shift and of its turn per sensor axis (the Gauss-Newton system's inverse scaled by the
 readings' noise ``fit_noise``; the prior's sigmas where the grasps told nothing). They bound what is left of
@@ -314,3 +316,4 @@ def prior_sigmas(sigma_m: float, sigma_rad: float) -> tuple[np.ndarray, np.ndarr
     sensor: (3,) m and (3,) rad per sensor axis."""
     gel, turn = _gel_and_turn_sigmas(np.diag([sigma_m**2] * 3 + [sigma_rad**2] * 3)[None])
     return gel[0], turn[0]
+
