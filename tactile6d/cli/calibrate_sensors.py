@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d.cli.estimate import (AUTO, EstimatorCache, collect_scenes, object_of, scene_backgrounds,
-                                    split_overrides, warnings_to_lines, write)
+from tactile6d.cli.estimate import (AUTO, EstimatorCache, add_scene_arguments, collect_scenes, object_of,
+                                    scene_backgrounds, split_overrides, warnings_to_lines, write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
@@ -53,12 +53,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         usage=("tactile6d calibrate-sensors --object NAME|auto --scene DIR [DIR ...] [--object-pose FILE] "
                "[--out FILE] [options] [key=value ...]"),
     )
-    parser.add_argument("--object", required=True, metavar="NAME|auto",
-                        help="the object held in every grasp, or 'auto': each scene's parent folder names it")
-    parser.add_argument("--scene", nargs="+", action="extend", default=[], metavar="DIR",
-                        help=f"grasp folder(s): poses_sensors.txt, Image_heatmap_<i>.png, {OBJECT_POSE_FILE}")
-    parser.add_argument("--scenes-root", default=None, metavar="DIR",
-                        help="every folder under DIR holding a poses_sensors.txt is a grasp")
+    add_scene_arguments(parser, "grasp", f"poses_sensors.txt, Image_heatmap_<i>.png, {OBJECT_POSE_FILE}")
     parser.add_argument("--object-pose", default=None, metavar="FILE",
                         help=f"the object's known pose for every grasp (one 'x y z ax ay az angle' line); "
                              f"default: each grasp folder's {OBJECT_POSE_FILE}")

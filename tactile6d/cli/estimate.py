@@ -85,12 +85,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         usage=("tactile6d estimate --object NAME|auto --scene DIR [DIR ...] [options] [key=value ...]\n"
                "       tactile6d estimate --object NAME|auto --scenes-root DIR [options] [key=value ...]"),
     )
-    parser.add_argument("--object", required=True, metavar="NAME|auto",
-                        help="object name for every scene, or 'auto': each scene's parent folder names it")
-    parser.add_argument("--scene", nargs="+", action="extend", default=[], metavar="DIR",
-                        help="scene folder(s): poses_sensors.txt + Image_heatmap_<i>.png")
-    parser.add_argument("--scenes-root", default=None, metavar="DIR",
-                        help="every folder under DIR holding a poses_sensors.txt is a scene")
+    add_scene_arguments(parser, "scene", "poses_sensors.txt + Image_heatmap_<i>.png")
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--top", type=int, default=None, help="poses to report (sets rank.top_k; default 5)")
     parser.add_argument("--json", action="store_true", help="print one JSON object per scene (JSON Lines)")
@@ -111,6 +106,17 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     if not args.scene and args.scenes_root is None:
         parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
     return args
+
+
+def add_scene_arguments(parser: argparse.ArgumentParser, what: str, holds: str) -> None:
+    """``--object NAME|auto``, ``--scene DIR [DIR ...]`` and ``--scenes-root DIR``, for commands that read scene
+    folders (``what`` each is called in the help, ``holds`` what a folder holds)."""
+    parser.add_argument("--object", required=True, metavar="NAME|auto",
+                        help=f"object name for every {what}, or 'auto': each {what}'s parent folder names it")
+    parser.add_argument("--scene", nargs="+", action="extend", default=[], metavar="DIR",
+                        help=f"{what} folder(s): {holds}")
+    parser.add_argument("--scenes-root", default=None, metavar="DIR",
+                        help=f"every folder under DIR holding a poses_sensors.txt is a {what}")
 
 
 def add_sensor_offsets_argument(parser: argparse.ArgumentParser, poses: str) -> None:
