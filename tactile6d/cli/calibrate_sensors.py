@@ -1,7 +1,7 @@
 """``tactile6d calibrate-sensors``: each sensor's mounting offset, from grasps of known objects at known poses.
 
-A hand's forward kinematics puts each fingertip off by millimetres and degrees, mostly by a bias of its own
-per finger (``tactile6d.estimation.sensor_offsets``). Grasp an object whose pose you know (a calibration
+A hand's forward kinematics puts each fingertip off by millimetres and degrees, much of it usually a bias of
+each finger's own (``tactile6d.estimation.sensor_offsets``). Grasp an object whose pose you know (a calibration
 object in a fixture, or placed by a motion-capture rig) a few times, in different places, and record each
 grasp as a scene folder in the paper's triplet layout (``poses_sensors.txt`` as the hand reports the sensor
 poses, ``Image_heatmap_<i>.png``, optionally ``background_<i>.png``) with the object's known pose in
@@ -9,14 +9,15 @@ poses, ``Image_heatmap_<i>.png``, optionally ``background_<i>.png``) with the ob
 give one pose for every scene with ``--object-pose FILE``. Each sensor's contact as read from its image
 must then lie on the object's surface; the offset that makes it so (under the prior
 ``sensors.pose_sigma_mm``/``_deg``) is fitted per sensor and written to ``--out`` (JSON, default
-``sensor_offsets.json``), which ``tactile6d estimate --sensor-offsets FILE`` and ``tactile6d track
---sensor-offsets FILE`` apply (``T_world_sensor @ offset``) before anything else, and the API's
+``sensor_offsets.json``), which ``tactile6d estimate``, ``identify`` and ``track`` apply with
+``--sensor-offsets FILE`` (``T_world_sensor @ offset``) before anything else, and the API's
 ``sensor_offsets.apply_sensor_offsets`` too.
 
 Printed, per sensor: the offset (translation mm, rotation deg, in the sensor's frame), how far it moves the
 gel's centre, in how many grasps the sensor touched, its contact points' RMS distance from the surface
-before and after (mm), and its posterior standard deviations (what the grasps leave uncertain: a sensor that
-only pressed flat faces keeps its prior along them). A sensor that touched in no grasp keeps no offset, with
+before and after (mm), and what the grasps leave uncertain (one standard deviation of the gel centre's shift
+along the sensor's axis and sideways: a press tells the first, a sideways slide over a smooth surface
+looks like no slide, so the second often stays near the prior; a note says so). A sensor that touched in no grasp keeps no offset, with
 a warning. Objects, artifacts, ``--background`` and config overrides as ``tactile6d estimate``.
 """
 

@@ -5,8 +5,8 @@ frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``
 (sensor i's own no-contact image, for every sensor): the images are then read against those, as a note
 on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
 order), which wins. ``--sensor-offsets FILE`` corrects the sensor poses by each sensor's mounting offset
-(``tactile6d calibrate-sensors``) before anything reads them. One sensor only is estimated with a ``warning:`` line on stderr (the pose is
-under-determined). Scenes are given with
+(``tactile6d calibrate-sensors``) before anything reads them. One sensor only is estimated with a
+``warning:`` line on stderr (the pose is under-determined). Scenes are given with
 ``--scene DIR [DIR ...]`` and/or ``--scenes-root DIR`` (every folder under DIR that holds a
 ``poses_sensors.txt``, in natural order: ``triplet_2`` before ``triplet_10``). All scenes run in one
 process; each object's artifacts are read once, from ``--artifacts`` (default: the config's
