@@ -1,7 +1,9 @@
 """What calibrating a hand's sensor offsets buys: grasps of known objects at known poses, then unknown ones.
 
     python scripts/sensor_offsets_study.py --artifacts ART --calibration CAL.h5 --test TEST.h5 [--hands 3]
-        [--bias-mm 1.5 --bias-deg 1.5 --jitter-mm 0.1 --jitter-deg 0.1] [--grasps 10] [override ...]
+        [--bias-mm 1.5 --bias-deg 1.5 --jitter-mm 0.1 --jitter-deg 0.1] [--grasps 10] [--seed 0] [override ...]
+    python scripts/sensor_offsets_study.py --artifacts ART --calibration CAL.h5 --sequences tracking.h5
+    python scripts/sensor_offsets_study.py ... --test TEST.h5 --self [--rounds 8] [--grasps 20]
 
 CAL.h5 and TEST.h5 are two generated scene sets of their own seeds (``make_scenes``' ``scenes`` files, e.g. the
 validation kind with ``scenes.validation.seed=...``). For each of ``--hands`` simulated hands, each sensor (by
@@ -17,9 +19,16 @@ images and no-contact images) through
 - the same, with ``sensors.pose_sigma_mm``/``_deg`` lowered to ``--after-mm``/``--after-deg``,
 - the true poses (what an exact hand would give; ``sensors`` as configured).
 
-Printed per hand: the offsets' remaining error (the gel centre's shift, mm, mean over sensors) against the
-bias, the fitted posterior sigmas, and each row's positional error #1, mean (median) cm, with how many scenes
-are 1 cm or more off. A diagnostic: it writes nothing.
+``--self`` (an experiment, not a command): no object pose known; the CAL scenes are estimated through the
+poses as corrected so far, the confident estimates' best poses (``--self-confidence``, not ambiguous) taken for
+known and the offsets refitted, ``--rounds`` times. ``--sequences FILE``: each sequence of a ``make_sequences``
+file calibrated for its own bias from the CAL grasps, then tracked through the poses as reported, corrected and
+true (median and mean error over frames, the longest run over 2 cm).
+
+Printed per hand: the gel centres' shift under the bias and under what the offsets leave of it (mm per sensor,
+along its axis and sideways), the offsets' posterior sigmas, the contact residuals before and after, and each
+row's positional error #1, mean (median) cm, with how many scenes are 1 cm or more off. A diagnostic: it writes
+nothing.
 """
 
 from __future__ import annotations
