@@ -4,6 +4,7 @@
         [--bias-mm 1.5 --bias-deg 1.5 --jitter-mm 0.1 --jitter-deg 0.1] [--grasps 10] [--seed 0] [override ...]
     python scripts/sensor_offsets_study.py --artifacts ART --calibration CAL.h5 --sequences tracking.h5
     python scripts/sensor_offsets_study.py ... --test TEST.h5 --self [--rounds 8] [--grasps 20]
+    python scripts/sensor_offsets_study.py --artifacts ART --calibration CAL.h5 --write-grasps DIR
 
 CAL.h5 and TEST.h5 are two generated scene sets of their own seeds (``make_scenes``' ``scenes`` files, e.g. the
 validation kind with ``scenes.validation.seed=...``). For each of ``--hands`` simulated hands, each sensor (by
@@ -25,6 +26,9 @@ known and the offsets refitted, ``--rounds`` times. ``--sequences FILE``: each s
 file calibrated for its own bias from the CAL grasps, then tracked through the poses as reported, corrected and
 true (median and mean error over frames, the longest run over 2 cm).
 
+``--write-grasps DIR`` only writes the first hand's calibration grasps as scene folders (with object_pose.txt),
+as ``tactile6d calibrate-sensors`` reads them.
+
 Printed per hand: the gel centres' shift under the bias and under what the offsets leave of it (mm per sensor,
 along its axis and sideways), the offsets' posterior sigmas, the contact residuals before and after, and each
 row's positional error #1, mean (median) cm, with how many scenes are 1 cm or more off. A diagnostic: it writes
@@ -42,9 +46,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
 from tactile6d.core.config import compose_config  # noqa: E402
-from tactile6d.core.geometry import make_pose, rotvec_to_rotmat  # noqa: E402
+from tactile6d.core.geometry import make_pose, pose_to_line, poses_to_text, rotvec_to_rotmat  # noqa: E402
 from tactile6d.core.sensor import GEL_CENTER  # noqa: E402
-from tactile6d.data.hdf5 import read_artifact  # noqa: E402
+from tactile6d.data.hdf5 import read_artifact, write_tactile_image  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.estimation.sensor_offsets import KnownGrasp, apply_sensor_offsets, fit_sensor_offsets  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
@@ -83,6 +87,26 @@ class Estimators:
         if (obj, which) not in self.cache:
             self.cache[obj, which] = Estimator.from_artifacts(obj, self.artifacts, self.cfgs[which])
         return self.cache[obj, which]
+
+
+def write_grasps(cal, n_grasps: int, bias: np.ndarray, args, rng, root: Path) -> list[Path]:
+    """The first ``n_grasps`` scenes of ``cal`` seen through ``bias`` and a jitter, written as grasp folders
+    ``root/<object>/grasp_<k>`` for ``tactile6d calibrate-sensors``: poses_sensors.txt as the hand reports them,
+    Image_heatmap_<i>.png, object_pose.txt (and background_<i>.png when the set has its own)."""
+    L, folders = len(bias), []
+    for s in range(n_grasps):
+        folder = root / str(cal["objects"][s]) / f"grasp_{s}"
+        folder.mkdir(parents=True)
+        error = bias @ draw_errors((L,), 1e-3 * args.jitter_mm, np.radians(args.jitter_deg), rng)
+        (folder / "poses_sensors.txt").write_text(poses_to_text(np.asarray(cal["T_world_sensors"][s]) @ error))
+        (folder / "object_pose.txt").write_text(pose_to_line(np.asarray(cal["T_world_object"][s])) + "\n")
+        backgrounds = scene_backgrounds(cal, s)
+        for i in range(L):
+            write_tactile_image(folder / f"Image_heatmap_{i}.png", np.asarray(cal["images"][s][i]))
+            if backgrounds is not None:
+                write_tactile_image(folder / f"background_{i}.png", backgrounds[i])
+        folders.append(folder)
+    return folders
 
 
 def calibrate(cal, n_grasps: int, bias: np.ndarray, args, estimators: Estimators, cfg, rng):
@@ -193,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="fit the offsets from the CAL scenes' own estimates, no object pose known")
     parser.add_argument("--rounds", type=int, default=3, help="with --self: estimate-and-refit rounds")
     parser.add_argument("--self-confidence", type=float, default=0.9, help="with --self: the estimates kept")
+    parser.add_argument("--write-grasps", default=None, metavar="DIR",
+                        help="only write the first hand's calibration grasps as scene folders under DIR")
     parser.add_argument("--after-mm", type=float, default=0.5)
     parser.add_argument("--after-deg", type=float, default=0.5)
     parser.add_argument("overrides", nargs="*")
@@ -204,6 +230,11 @@ def main(argv: list[str] | None = None) -> int:
     cal = read_artifact(args.calibration, "scenes")
     n_cal, L = min(args.grasps, len(cal["names"])), int(np.asarray(cal["T_world_sensors"]).shape[1])
     rng = np.random.default_rng(args.seed)
+    if args.write_grasps:
+        bias = draw_errors((L,), 1e-3 * args.bias_mm, np.radians(args.bias_deg), rng)
+        folders = write_grasps(cal, n_cal, bias, args, rng, Path(args.write_grasps))
+        print(f"{len(folders)} grasp folders under {args.write_grasps}")
+        return 0
     if args.sequences:
         track_sequences(args.sequences, cal, n_cal, args, estimators, cfg, rng)
     if not args.test:
