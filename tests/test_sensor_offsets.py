@@ -188,3 +188,54 @@ def test_the_file_round_trips_and_bad_files_are_named(curved, tmp_path):
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(InputError, match="not JSON"):
         SensorOffsets.read(tmp_path / "bad.json")
+
+
+def robust_cost(grasps, i, E, sigma_m, sigma_rad, normal_weight=0.01):
+    """The objective ``fit_sensor_offsets`` minimises for sensor i, written out plainly: Cauchy losses of the
+    contact point's point-to-plane residual (2 mm) and of its normal's difference (10 deg), plus the Gaussian
+    prior on the offset (v, omega) against the fit noise."""
+    from tactile6d.estimation.refine import FIT_NOISE, SurfaceFit
+
+    s, s_angle = 0.002, np.radians(10.0)
+    total = 0.0
+    for grasp in grasps:
+        to_sensor = np.linalg.inv(grasp.T_world_sensors[i])
+        p = to_sensor[:3, :3] @ grasp.contacts.points[i] + to_sensor[:3, 3]
+        n = to_sensor[:3, :3] @ grasp.contacts.normals[i]
+        M = np.linalg.inv(grasp.T_world_object) @ grasp.T_world_sensors[i] @ E
+        q, u = M[:3, :3] @ p + M[:3, 3], M[:3, :3] @ n
+        c, m = SurfaceFit(grasp.surface, np.zeros((1, 3)), np.ones((1, 3)), normal_weight).match(q[None], u[None])
+        r = float(m[0] @ (q - c[0]))
+        total += 0.5 * s**2 * np.log1p((r / s) ** 2)
+        total += 0.5 * normal_weight**2 * s_angle**2 * np.log1p(np.sum((u - m[0]) ** 2) / s_angle**2)
+    xi = np.concatenate([E[:3, 3], g.rotmat_to_rotvec(E[:3, :3])])
+    prior = np.array([(FIT_NOISE / sigma_m) ** 2] * 3 + [(FIT_NOISE / sigma_rad) ** 2] * 3)
+    return total + 0.5 * np.sum(prior * xi**2)
+
+
+def numeric_gradient(f, E, eps=1e-7):
+    """Central differences of f(E exp(delta)) over delta = (v, omega), the fit's right perturbation."""
+    grad = np.zeros(6)
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = eps
+        step = lambda x: E @ g.make_pose(g.rotvec_to_rotmat(x[3:]), x[:3])  # noqa: E731
+        grad[k] = (f(step(d)) - f(step(-d))) / (2 * eps)
+    return grad
+
+
+def test_the_fit_ends_where_the_plainly_written_objective_is_flat(curved):
+    """The Gauss-Newton system's Jacobians against a naive reference: at the fitted offset the objective,
+    written out without them, has (numerically) no slope left; at no offset it has."""
+    mesh, surface = curved
+    rng = np.random.default_rng(9)
+    bias = draw_bias(3, rng)
+    grasps = grasps_of(mesh, surface, bias, 8, rng)
+    offsets = fit_sensor_offsets(grasps, SIGMA_M, SIGMA_RAD, patch_points=0, n_iterations=60)
+    for i in range(3):
+        f = lambda E: robust_cost(grasps, i, E, SIGMA_M, SIGMA_RAD)  # noqa: E731
+        at_start, at_fit = numeric_gradient(f, np.eye(4)), numeric_gradient(f, offsets.offsets[i])
+        # measured 2e-4 to 1e-3 of the start's slope (the surface samples matched last differ a little from those
+        # the steps converged on); a wrong sign or Jacobian would leave a slope of the start's order
+        assert np.linalg.norm(at_fit) < 1e-2 * np.linalg.norm(at_start)
+        assert f(offsets.offsets[i]) < f(np.eye(4))
