@@ -203,3 +203,19 @@ def test_no_prior_is_an_error(capsys, hand):
     code, _, err = run(capsys, "calibrate-sensors", "--object", OBJECT, "--scene", str(hand["folders"][0]),
                        "--artifacts", str(hand["artifacts"]), "sensors.pose_sigma_mm=0", "sensors.pose_sigma_deg=0")
     assert code == 2 and "pose_sigma" in err
+
+
+def test_no_contact_images_estimated_from_the_grasps(capsys, hand, tmp_path):
+    """``--background from-scenes`` as for ``estimate``: each sensor's no-contact image from its images in the grasps
+    given (said on stderr), winning over the folders' own."""
+    out = tmp_path / "offsets.json"
+    code, _, err = run(capsys, "calibrate-sensors", "--object", OBJECT, "--scene", *map(str, hand["folders"][:GRASPS]),
+                       "--artifacts", str(hand["artifacts"]), "--out", str(out), "--background", "from-scenes",
+                       *QUICK)
+    assert code == 0, err
+    assert f"estimated from its images in the {GRASPS} scenes" in err
+    assert "--background given, the folder's background_<i>.png are not used" in err
+    assert SensorOffsets.read(out).n_sensors == 3
+    code, _, err = run(capsys, "calibrate-sensors", "--object", OBJECT, "--scene", str(hand["folders"][0]),
+                       "--artifacts", str(hand["artifacts"]), "--out", str(out), "--background", "from-scenes", *QUICK)
+    assert code == 2 and "needs at least 5 scenes" in err

@@ -31,14 +31,15 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d.cli.estimate import (AUTO, EstimatorCache, add_scene_arguments, collect_scenes, object_of,
-                                    scene_backgrounds, split_overrides, warnings_to_lines, write)
+from tactile6d.cli.estimate import (AUTO, FROM_SCENES, EstimatorCache, add_scene_arguments, background_option,
+                                    collect_scenes, object_of, scene_backgrounds, split_overrides, warnings_to_lines,
+                                    write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import line_to_pose
 from tactile6d.core.sensor import GEL_CENTER
-from tactile6d.data.hdf5 import read_background_images, read_scene_dir
+from tactile6d.data.hdf5 import read_scene_dir
 from tactile6d.estimation.sensor_offsets import KnownGrasp, SensorOffsets, fit_sensor_offsets, prior_sigmas
 from tactile6d.perception import photometric
 
@@ -61,7 +62,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--out", default="sensor_offsets.json", metavar="FILE", help="where the offsets go (JSON)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
-                        help="the sensors' own no-contact image(s): one for every sensor or one per sensor "
+                        help="the sensors' own no-contact image(s): one for every sensor or one per sensor, or "
+                             f"'{FROM_SCENES}' (estimated from the grasps' images) as for `tactile6d estimate` "
                              "(default: each grasp folder's background_<i>.png, else render.background)")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
@@ -151,9 +153,8 @@ def main(argv: list[str]) -> int:
     if args.object != AUTO:
         known.get(args.object)
     given_pose = read_pose_file(Path(args.object_pose)) if args.object_pose else None
-    background = read_background_images(args.background) if args.background else None
-    cache = EstimatorCache(known, cfg, background)
     scenes = collect_scenes(args)
+    cache = EstimatorCache(known, cfg, background_option(args.background, scenes))
     grasps = [read_grasp(scene, object_of(scene, args.object, known), cache, object_pose_of(scene, given_pose))
               for scene in scenes]
     rank, sigma_m, sigma_rad = cfg.rank, 1e-3 * cfg.sensors.pose_sigma_mm, np.radians(cfg.sensors.pose_sigma_deg)

@@ -306,6 +306,16 @@ def backgrounds_from_scenes(scenes: list[Path]) -> tuple[np.ndarray, str]:
                                   "sensors for better readings")
 
 
+def background_option(words: list[str] | None, scenes: list[Path]) -> np.ndarray | None:
+    """``--background``'s no-contact images: read from its files, estimated from the scenes' images with
+    ``from-scenes`` (a note on stderr says so), or None when not given."""
+    if words == [FROM_SCENES]:
+        background, note = backgrounds_from_scenes(scenes)
+        write(note, sys.stderr)
+        return background
+    return read_background_images(words) if words else None
+
+
 def scene_backgrounds(scene: Path, n_sensors: int, given: bool) -> tuple[np.ndarray | None, str | None]:
     """The scene folder's own no-contact images (``hdf5.read_scene_backgrounds``; None when it has none, or
     when ``--background`` was ``given``, which wins) and a note for stderr saying which are used."""
@@ -399,12 +409,7 @@ def main(argv: list[str]) -> int:
     if args.object != AUTO:
         known.get(args.object)  # an unknown name ends the command before any scene is read
     scenes = collect_scenes(args)
-    if args.background == [FROM_SCENES]:
-        background, note = backgrounds_from_scenes(scenes)
-        write(note, sys.stderr)
-    else:
-        background = read_background_images(args.background) if args.background else None
-    cache = EstimatorCache(known, cfg, background, read_sensor_offsets(args))
+    cache = EstimatorCache(known, cfg, background_option(args.background, scenes), read_sensor_offsets(args))
 
     if len(scenes) == 1 and args.scenes_root is None:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).
