@@ -47,10 +47,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 from tactile6d.core.config import compose_config  # noqa: E402
 from tactile6d.core.geometry import make_pose, pose_to_line, poses_to_text, rotvec_to_rotmat  # noqa: E402
-from tactile6d.core.sensor import GEL_CENTER  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact, write_tactile_image  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
-from tactile6d.estimation.sensor_offsets import KnownGrasp, apply_sensor_offsets, fit_sensor_offsets  # noqa: E402
+from tactile6d.estimation.sensor_offsets import (KnownGrasp, apply_sensor_offsets, fit_sensor_offsets,  # noqa: E402
+                                                 gel_centre_shifts)
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
 
 
@@ -62,13 +62,12 @@ def draw_errors(shape: tuple[int, ...], sigma_m: float, sigma_rad: float, rng: n
 
 def gel_shift_mm(error: np.ndarray) -> np.ndarray:
     """(..., 4, 4) sensor-frame errors -> how far each moves the gel centre, mm."""
-    moved = np.einsum("...ab,b->...a", error[..., :3, :3], GEL_CENTER) + error[..., :3, 3]
-    return 1000.0 * np.linalg.norm(moved - GEL_CENTER, axis=-1)
+    return 1000.0 * np.linalg.norm(gel_centre_shifts(error), axis=-1)
 
 
 def axial_and_sideways_mm(error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(L, 4, 4) sensor-frame errors -> the gel centre's shift along each sensor's axis (x) and sideways (y, z), mm."""
-    moved = np.einsum("lab,b->la", error[:, :3, :3], GEL_CENTER) + error[:, :3, 3] - GEL_CENTER
+    moved = gel_centre_shifts(error)
     return 1000.0 * np.abs(moved[:, 0]), 1000.0 * np.linalg.norm(moved[:, 1:], axis=1)
 
 

@@ -38,9 +38,9 @@ from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import line_to_pose
-from tactile6d.core.sensor import GEL_CENTER
 from tactile6d.data.hdf5 import read_scene_dir
-from tactile6d.estimation.sensor_offsets import KnownGrasp, SensorOffsets, fit_sensor_offsets, prior_sigmas
+from tactile6d.estimation.sensor_offsets import (KnownGrasp, SensorOffsets, fit_sensor_offsets, gel_centre_shifts,
+                                                 prior_sigmas)
 from tactile6d.perception import photometric
 
 OBJECT_POSE_FILE = "object_pose.txt"
@@ -121,7 +121,7 @@ def report(offsets: SensorOffsets, out: Path, prior_gel_sigma: np.ndarray) -> st
     points' distance from the surface before and after, and what the grasps left uncertain (prior_gel_sigma
     (3,) m: what the prior alone leaves, ``sensor_offsets.prior_sigmas``)."""
     t, r = offsets.translations_mm(), offsets.rotations_deg()
-    moved = np.einsum("lab,b->la", offsets.offsets[:, :3, :3], GEL_CENTER) + offsets.offsets[:, :3, 3] - GEL_CENTER
+    moved = gel_centre_shifts(offsets.offsets)
     along, sideways = 1000 * offsets.gel_sigma_m[:, 0], 1000 * offsets.gel_sigma_m[:, 1:].max(axis=1)
     lines = [f"sensor offsets written to {out} (T_world_sensor @ offset, in the sensor's frame)",
              f"{'sensor':>6}  {'grasps':>6}  {'translation (mm)':<20}  {'rotation (deg)':<20}  {'gel moved':>9}  "

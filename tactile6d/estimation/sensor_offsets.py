@@ -188,20 +188,27 @@ def apply_sensor_offsets(T_world_sensors: np.ndarray, offsets: SensorOffsets | n
     return T @ E
 
 
-def _sensor_rows(grasp: KnownGrasp, i: int, patch_points: int, patch_weight: float):
-    """Sensor i's readings in its own frame -> points (M, 3) (the contact point first), their weights (M,),
-    and the contact normal (3,); None when the sensor's contact was not read from its image."""
+def _grasp_rows(grasp: KnownGrasp, patch_points: int, patch_weight: float, normal_weight: float) -> list:
+    """Each sensor's readings in one grasp, in its own frame -> per sensor None (its contact was not read from
+    its image) or (A (4, 4) object <- reported sensor, points (M, 3) with the contact point first, their
+    weights (M,), the contact normal (3,), the SurfaceFit that matches them)."""
     c = grasp.contacts
-    if not bool(c.from_patch[i]):
-        return None
     T = np.asarray(grasp.T_world_sensors, dtype=np.float64)
-    to_sensor = invert_pose(T[i])
-    point = to_sensor[:3, :3] @ np.asarray(c.points[i], dtype=np.float64) + to_sensor[:3, 3]
-    normal = to_sensor[:3, :3] @ np.asarray(c.normals[i], dtype=np.float64)
+    to_object = invert_pose(np.asarray(grasp.T_world_object, dtype=np.float64))
+    fit = SurfaceFit(grasp.surface, np.zeros((1, 3)), np.ones((1, 3)), normal_weight)  # only its matching is used
     extra, owners = c.patch_points(T, patch_points)
-    extra = extra[owners == i] @ to_sensor[:3, :3].T + to_sensor[:3, 3]
-    weights = np.concatenate([[1.0], np.full(len(extra), patch_weight / np.sqrt(max(len(extra), 1)))])
-    return np.vstack([point[None], extra]), weights, normal / np.linalg.norm(normal)
+    rows = []
+    for i in range(len(T)):
+        if not bool(c.from_patch[i]):
+            rows.append(None)
+            continue
+        to_sensor = invert_pose(T[i])
+        point = to_sensor[:3, :3] @ np.asarray(c.points[i], dtype=np.float64) + to_sensor[:3, 3]
+        normal = to_sensor[:3, :3] @ np.asarray(c.normals[i], dtype=np.float64)
+        own = extra[owners == i] @ to_sensor[:3, :3].T + to_sensor[:3, 3]
+        weights = np.concatenate([[1.0], np.full(len(own), patch_weight / np.sqrt(max(len(own), 1)))])
+        rows.append((to_object @ T[i], np.vstack([point[None], own]), weights, normal / np.linalg.norm(normal), fit))
+    return rows
 
 
 def _clip(step: np.ndarray) -> np.ndarray:
@@ -275,15 +282,9 @@ def fit_sensor_offsets(
     offsets = np.repeat(np.eye(4)[None], L, axis=0)
     covariances = np.repeat((fit_noise**2 * np.linalg.inv(prior))[None], L, axis=0)
     counts, after, before = np.zeros(L, dtype=int), np.full(L, np.nan), np.full(L, np.nan)
+    per_grasp = [_grasp_rows(grasp, patch_points, patch_weight, normal_weight) for grasp in grasps]
     for i in range(L):
-        rows = []
-        for grasp in grasps:
-            read = _sensor_rows(grasp, i, patch_points, patch_weight)
-            if read is None:
-                continue
-            A = invert_pose(np.asarray(grasp.T_world_object, dtype=np.float64)) @ np.asarray(grasp.T_world_sensors[i])
-            fit = SurfaceFit(grasp.surface, np.zeros((1, 3)), np.ones((1, 3)), normal_weight)
-            rows.append((A, *read, fit))
+        rows = [read[i] for read in per_grasp if read[i] is not None]
         counts[i] = len(rows)
         if not rows:
             continue
@@ -300,6 +301,13 @@ def fit_sensor_offsets(
         covariances[i] = fit_noise**2 * np.linalg.inv(H + prior)
         offsets[i] = E
     return SensorOffsets(offsets, *_gel_and_turn_sigmas(covariances), counts, after, before)
+
+
+def gel_centre_shifts(errors: np.ndarray) -> np.ndarray:
+    """Sensor-frame pose errors or offsets (..., 4, 4) -> how far each moves the gel centre
+    (``sensor.GEL_CENTER``), (..., 3) m along the sensor's axes: x along its axis, y and z sideways."""
+    errors = np.asarray(errors, dtype=np.float64)
+    return np.einsum("...ab,b->...a", errors[..., :3, :3], GEL_CENTER) + errors[..., :3, 3] - GEL_CENTER
 
 
 def _gel_and_turn_sigmas(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
