@@ -12,9 +12,11 @@ from test_estimator import (
     HALF,
     T_TRUE,
     cut_box,
+    make_estimator as make_world_estimator,
     pose_errors,
     settings,
     small_patch_model,
+    world,  # noqa: F401 (a fixture)
 )
 
 from tactile6d.core import sensor
@@ -62,6 +64,77 @@ def test_patch_contacts_are_moved_to_the_world_and_a_sensor_without_contact_keep
     assert c.observed and c.masks.shape == (3, H, W) and c.depths.dtype == np.float32
     with pytest.raises(InputError, match="2 contact patches for 3 sensors"):
         contacts.patches_to_contacts([none, none], T)
+
+
+def test_a_sensor_whose_image_shows_no_contact_does_not_touch_when_another_does():
+    T = T_TRUE @ sensor.sensor_poses_touching(np.eye(3) * 0.05, np.eye(3), [0.1, 0.2, 0.3])
+    p, n = np.array([0.019, 0.003, 0.011]), np.array([-0.96, 0.28, 0.0])
+    none = contact_patch.ContactPatch(False, np.zeros((H, W), bool), np.zeros((H, W), np.float32), None, None, 1.0)
+    c = contacts.patches_to_contacts([fake_patch(p, n), none, fake_patch(p, -n)], T)
+    np.testing.assert_array_equal(c.touching, [True, False, True])
+    # landmarks, or images none of which shows contact, tell nothing: every sensor counts (the paper's assumption)
+    np.testing.assert_array_equal(contacts.sensors_to_landmark_contacts(T).touching, [True] * 3)
+    np.testing.assert_array_equal(contacts.patches_to_contacts([none] * 3, T).touching, [True] * 3)
+    two = c.of_sensors(np.array([2, 0]))
+    np.testing.assert_array_equal(two.points, c.points[[2, 0]])
+    np.testing.assert_array_equal(two.normals, c.normals[[2, 0]])
+    np.testing.assert_array_equal(two.masks, c.masks[[2, 0]])
+    np.testing.assert_array_equal(two.depths, c.depths[[2, 0]])
+    assert two.from_patch.all() and two.touching.all()
+    with pytest.warns(contacts.UntouchedSensorWarning, match=r"sensor\(s\) 1: the pose rests on sensor\(s\) 0, 2"):
+        contacts.warn_if_untouched(c)
+    one = contacts.patches_to_contacts([none, none, fake_patch(p, n)], T)
+    with pytest.warns(contacts.UntouchedSensorWarning, match="under-determined"):
+        contacts.warn_if_untouched(one)
+
+
+def lifted_contacts(world, lifted: int, back: float) -> tuple[np.ndarray, contacts.Contacts]:
+    """The synthetic world's three sensors as observed patch contacts at their landmarks (which lie on the cut
+    box), sensor ``lifted`` moved ``back`` m away from the object along its axis, its image showing no contact."""
+    T = world["T_world_sensors"].copy()
+    T[lifted] = T[lifted] @ make_pose(np.eye(3), [-back, 0.0, 0.0])
+    c = contacts.sensors_to_landmark_contacts(T)
+    from_patch = np.arange(3) != lifted
+    masks = np.zeros((3, H, W), bool)
+    masks[from_patch, 150:170, 110:130] = True
+    return T, contacts.Contacts(c.points, c.normals, from_patch, masks, np.where(masks, 1e-3, 0.0).astype(np.float32))
+
+
+@pytest.mark.parametrize("kinematics", [{}, EXACT_POSES], ids=["corrected sensors", "exact sensors"])
+def test_selection_fit_and_refinement_leave_out_a_sensor_that_does_not_touch(world, kinematics):
+    """Against the naive reference: each step run on the touching sensors alone. The lifted sensor is 10 cm back,
+    where no pose near the object presses it, so the ranking through all three sensors scores as through two."""
+    e = make_world_estimator(world, **kinematics, **{"rank.refine": "true", "rank.refine_offset": 0.0})
+    T, c = lifted_contacts(world, 1, 0.10)
+    on = np.array([0, 2])
+    angles = world["db_angles"][world["idx"]]
+    chosen = e.select(c, angles)
+    alone = e.select(c.of_sensors(on), angles[on])
+    np.testing.assert_array_equal(chosen.tuples[:, on], alone.tuples)
+    assert (chosen.tuples[:, 1] == -1).all() and chosen.omega_sizes[1] == 0 and np.isnan(chosen.delta_h[1])
+    np.testing.assert_array_equal(chosen.omega_sizes[on], alone.omega_sizes)
+    hypotheses = e.optimize(c, chosen.tuples)
+    reference = e.optimize(c.of_sensors(on), alone.tuples)
+    np.testing.assert_array_equal(hypotheses.poses, reference.poses)
+    ranked = e.rank(T, hypotheses.poses, hypotheses.losses, c)
+    two = e.rank(T[on], reference.poses, reference.losses, c.of_sensors(on))
+    np.testing.assert_allclose(ranked.poses, two.poses, atol=1e-12)
+    np.testing.assert_allclose(ranked.scores, two.scores, atol=1e-12)
+    assert ranked.penetrations.shape == (len(ranked.poses), 3) and (ranked.penetrations[:, 1] == 0).all()
+
+
+def test_a_pose_that_presses_a_sensor_showing_no_contact_pays_for_it(world):
+    """The lifted sensor only 0.5 mm back: the true pose is still clear of it, a pose 3 mm further in presses it and
+    scores worse by that press (beyond the allowance), though both fit the two touching sensors' contacts."""
+    e = make_world_estimator(world, **EXACT_POSES, **{"rank.refine": "false", "rank.top_k": 2,
+                                                       "rank.dedup_translation": 0.001})
+    T, c = lifted_contacts(world, 1, 0.0005)
+    towards = -T[1, :3, 0]  # the object lies along the sensor's +x: moving it along -x presses the gel
+    pressed = T_TRUE.copy()
+    pressed[:3, 3] += 0.003 * towards
+    ranked = e.rank(T, np.stack([pressed, T_TRUE]), np.zeros(2), c)
+    np.testing.assert_allclose(ranked.poses[0], T_TRUE, atol=1e-6)  # est.rank rounds poses as the stages store them
+    assert ranked.penetrations[1, 1] > 2e-3 and ranked.scores[1] > ranked.scores[0] + 2e-3
 
 
 def test_contacts_round_trip_through_a_run_artifact(tmp_path):

@@ -93,7 +93,8 @@ def test_tracking_section_tabulates_each_sequence_and_says_which_sensor_poses_it
     frames = {"track_position_m": [0.004, 0.03, 0.005], "single_frames": [0], "single_position_m": [0.09],
               "modes": ["redetect", "update", "update"], "touching": [[True] * 3, [True, False, True], [True] * 3]}
     summary = {"sequences": 1, "frames": 3, "fps": 30.0, "lost_threshold_cm": 2.0, "track_position_cm_median": 0.44,
-               "track_position_cm_median_compared": 0.45, "single_position_cm_median": 9.22, "longest_over_s_max": 1.03,
+               "track_position_cm_median_compared": 0.45, "single_position_cm_median": 9.22, "single_failed": 0,
+               "longest_over_s_max": 1.03,
                "redetections": 3, "ambiguous_share": 0.25, "wrong_share_ambiguous": 0.5, "wrong_share_unambiguous": 0.02,
                "confidence_auroc": 0.834}
     write_json(layout.metrics_file(tmp_path, "tracking"), {"summary": summary, "sequences": [row], "frames": [frames]})
@@ -104,6 +105,7 @@ def test_tracking_section_tabulates_each_sequence_and_says_which_sensor_poses_it
     assert "| `036_wood_block/sequence_0` | 0.44 | 0.45 | 9.22 | 1.03 | 3 |" in text
     assert "| **all** | 0.44 | 0.45 | 9.22 | 1.03 (longest) | 3 |" in text
     assert ("fed without it, track.evaluation.true_sensor_poses" in text) == true_poses
+    assert "0 of these 1 frames matched nothing" in text
     assert "AUROC 0.83; 25.0 % of the frames were flagged ambiguous" in text
     assert "50.0 % of them 1 cm ADI or more off, against 2.0 % of the others" in text
     assert (figures / "tracking_error.png").stat().st_size > 1000

@@ -54,3 +54,16 @@ def test_trust_summary_without_flags_or_wrong_frames_says_none():
     out = acc.trust_summary(np.zeros(3, bool), np.array([0.9, 0.8, 0.7]), np.array([0.001, 0.002, 0.003]))
     assert out["ambiguous_share"] == 0.0 and np.isnan(out["wrong_share_ambiguous"])
     assert out["wrong_share_unambiguous"] == 0.0 and np.isnan(out["confidence_auroc"])
+
+
+def test_failed_single_shot_frames_are_counted_and_left_out_of_its_figures():
+    track = {"position": np.array([0.001, 0.002, 0.03, 0.004]), "adi": np.array([0.001, 0.002, 0.03, 0.004])}
+    single = {"position": np.array([0.005, np.nan]), "adi": np.array([0.005, np.nan])}
+    compared = np.array([0, 3])
+    row = acc.summarise_sequence(track, single, compared, ["redetect", "update", "update", "update"],
+                                 np.full(4, 0.01), 30.0, 0.02)
+    assert row["single_failed"] == 1 and row["single_position_cm_median"] == pytest.approx(0.5)
+    assert row["track_position_cm_median_compared"] == pytest.approx(0.25)
+    summary = acc.summarise_set([row, row], np.concatenate([track["position"]] * 2),
+                                np.concatenate([single["position"]] * 2), np.concatenate([track["position"][compared]] * 2))
+    assert summary["single_failed"] == 2 and summary["single_position_cm_mean"] == pytest.approx(0.5)

@@ -45,7 +45,7 @@ from tactile6d.estimation.select import Selection
 from tactile6d.perception import encode as encode_step
 from tactile6d.perception import photometric
 from tactile6d.perception.contact_patch import PatchModel
-from tactile6d.perception.contacts import Contacts
+from tactile6d.perception.contacts import Contacts, warn_if_untouched
 from tactile6d.perception.inputs import (
     backgrounds_per_sensor,
     body_overlap_margin,
@@ -380,7 +380,9 @@ class Estimator:
         ``background``). The inputs are checked first (``check_scene``): InputError for a bad one, an
         ``inputs.UnderdeterminedPoseWarning`` for one sensor. Then each image is brought to its no-contact
         image's light (``align_light``; a ``photometric.LightWarning`` where that light cannot be trusted),
-        and only then read.
+        and only then read. Sensors whose images show no contact while others' do are left out of the
+        selection and the fit, and still checked in the ranking (``Contacts.touching``; a
+        ``contacts.UntouchedSensorWarning``).
         """
         start = time.perf_counter()
         T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)  # the one check
@@ -410,6 +412,7 @@ class Estimator:
 
     def _estimate_checked(self, T: np.ndarray, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
         """``estimate_encoded`` for checked sensor poses."""
+        warn_if_untouched(contacts, stacklevel=4)
         start = time.perf_counter()
         seconds = {}
         t0 = time.perf_counter()

@@ -481,8 +481,12 @@ def optimize(
     contacts: the L sensors' contact points and normals (``tactile6d.perception.contacts``); normals (M, 3): the database
     normals, needed when ``optimize.normal_weight`` > 0; sensors: how far the sensor poses may be off, whose
     contact error (``SensorSettings.contact_sigma``, ``angle_sigma``) is the fast solver's noise floor when
-    ``optimize.noise_floor`` is on.
+    ``optimize.noise_floor`` is on. tuples (T, L) as ``select.select`` gives them: a sensor the object does not
+    touch (``contacts.touching``, its column -1) is left out of the fit.
     """
+    on = np.flatnonzero(contacts.touching)
+    if len(on) < contacts.points.shape[0]:
+        contacts, tuples = contacts.of_sensors(on), np.asarray(tuples)[:, on]
     return tuples_to_poses(
         points,
         contacts.points,

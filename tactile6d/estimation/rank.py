@@ -229,22 +229,30 @@ def rank(
     scored_depths, correction_cost = depths, 0.0
     seen = None  # (P, L, 4, 4) the object as each corrected sensor sees it, when the sensors are corrected
     if settings.refine:
-        s, w = contacts.points, float(settings.refine_normal_weight)
-        fit = refinement.SurfaceFit(surface, s, contacts.normals, w, contacts.offsets(settings.refine_offset))
-        extra, owners = contacts.patch_points(T_world_sensors, int(settings.refine_patch_points))
+        # Refined against the sensors the object touches; scored below through every sensor.
+        on = np.flatnonzero(contacts.touching)
+        touched = contacts if len(on) == len(contacts.points) else contacts.of_sensors(on)
+        s, w = touched.points, float(settings.refine_normal_weight)
+        fit = refinement.SurfaceFit(surface, s, touched.normals, w, touched.offsets(settings.refine_offset))
+        extra, owners = touched.patch_points(T_world_sensors[on], int(settings.refine_patch_points))
         # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
         per_sensor = np.bincount(owners, minlength=len(s))[owners]
         extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
         if not sensors.exact:
             sigma_contact, sigma_angle = sensors.correction_sigmas
-            candidates, seen = refinement.refine_poses_and_sensors(
+            candidates, seen_touched = refinement.refine_poses_and_sensors(
                 fit, candidates, sigma_contact, sigma_angle, n_iterations=int(settings.refine_iterations),
                 patch_points=extra, patch_weights=extra_w, patch_owners=owners)
-            correction_cost = refinement.sensor_corrections_cost(candidates, seen, s, sigma_contact, sigma_angle)
+            correction_cost = refinement.sensor_corrections_cost(candidates, seen_touched, s, sigma_contact,
+                                                                 sigma_angle)
+            seen = seen_touched
+            if touched is not contacts:  # a sensor the object does not touch has no correction to see it through
+                seen = np.repeat(candidates[:, None], len(contacts.points), axis=1)
+                seen[:, on] = seen_touched
         else:
             candidates = refinement.refine_poses(fit, candidates, int(settings.refine_iterations),
                                                  patch_points=extra, patch_weights=extra_w)
-        distance, angle = refinement.surface_losses(fit, candidates if seen is None else seen)
+        distance, angle = refinement.surface_losses(fit, candidates if seen is None else seen_touched)
         new_losses = distance + w * angle
         # Reported: the penetrations through the sensor poses as given; scored: through the corrected ones.
         depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)

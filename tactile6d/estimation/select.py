@@ -695,7 +695,8 @@ def select_tuples(
 class Selection:
     """Result and diagnostics of the selection step.
 
-    tuples (T, L) int64 database indices; errors (T,) mean pair-distance error (m); omega_sizes (L,)
+    tuples (T, L) int64 database indices, -1 for a sensor that does not touch (``Contacts.touching``);
+    errors (T,) mean pair-distance error (m); omega_sizes (L,)
     |Omega_i|; delta_h (L,) the latent-angle threshold each sensor used (rad; NaN for the baseline);
     widened (L,) whether it had to be raised above ``delta_h``; delta_d the distance threshold
     the adaptive rule stopped at (m); capped: only the N lowest-error tuples were kept.
@@ -708,6 +709,19 @@ class Selection:
     widened: np.ndarray
     delta_d: float
     capped: bool
+
+    def to_sensors(self, on: np.ndarray, n_sensors: int) -> Selection:
+        """This selection, made for the sensors ``on`` (K,) int alone, given for all ``n_sensors``: a sensor
+        left out has -1 in every tuple, an empty Omega_i, no delta_h (NaN) and no widening."""
+        tuples = np.full((self.tuples.shape[0], n_sensors), -1, dtype=self.tuples.dtype)
+        tuples[:, on] = self.tuples
+        omega_sizes = np.zeros(n_sensors, dtype=self.omega_sizes.dtype)
+        omega_sizes[on] = self.omega_sizes
+        delta_h = np.full(n_sensors, np.nan)
+        delta_h[on] = self.delta_h
+        widened = np.zeros(n_sensors, dtype=bool)
+        widened[on] = self.widened
+        return Selection(tuples, self.errors, omega_sizes, delta_h, widened, self.delta_d, self.capped)
 
 
 def select(
@@ -727,8 +741,16 @@ def select(
     the baseline); normals (M, 3) the points' outward normals, needed when ``normal_tol_deg``
     is set (normal-consistent tuples only); sensors: how far the sensor poses may be off, which widens
     the distance and normal tolerances (``SensorSettings.pair_distance_tolerance``, ``pair_angle_tolerance``).
+
+    Only the sensors the object touches (``contacts.touching``: where some images show contact, those) are
+    selected for; the others' columns of the tuples are -1 (``Selection.to_sensors``).
     """
     n_sensors = contacts.points.shape[0]
+    on = np.flatnonzero(contacts.touching)
+    if len(on) < n_sensors:
+        part = select(points, db_angles, contacts.of_sensors(on), None if angles is None else np.asarray(angles)[on],
+                      settings, normals, sensors=sensors)
+        return part.to_sensors(on, n_sensors)
     check = None
     if settings.normals_apply(n_sensors):
         if normals is None:

@@ -27,6 +27,14 @@ rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose 
   frame is estimated from scratch too and its poses join them, so that a track that settled on a wrong
   pose which fits as well (the evidence cannot tell) is offered the right one again. The tracker never
   returns an updated pose that penetrates a sensor beyond the limit.
+- **a sensor lifted off**: while a sensor that touched at the last re-detection shows no contact, for at
+  most ``lift_wait`` frames, the track is not re-detected: a periodic re-detection waits until it touches
+  again, and when every hypothesis fails the fit check but the touching sensors' contacts still fit one (the
+  images' agreement or the penetration failed, as they do while a gel is barely pressed) the last pose is
+  held (``hold``, reason ``lift``, ``fit_ok`` False) and the hypotheses are refined again on the next frame.
+  Contacts that fit no hypothesis (the object moved or swapped) are re-detected at once. With one contact fewer the
+  object's pose is less determined (two contacts leave a cylinder free to slide along its axis), and a
+  single-shot estimate from the others is then worse than the pose followed so far.
 - a frame where no image shows contact holds the last pose (nothing to fit), as does a re-detection that
   matches nothing (then the next frame is re-detected again).
 
@@ -49,6 +57,7 @@ Settings: config section ``track`` (conf/track/default.yaml); the estimator's ow
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -65,7 +74,7 @@ from tactile6d.estimation import refine as refinement
 from tactile6d.estimation.estimator import Estimate, Estimator
 from tactile6d.perception import photometric
 from tactile6d.perception.contact_patch import image_to_patch
-from tactile6d.perception.contacts import Contacts, patches_to_contacts
+from tactile6d.perception.contacts import Contacts, UntouchedSensorWarning, patches_to_contacts
 from tactile6d.perception.encode import sensor_background
 from tactile6d.perception.patch_reader import PatchReader
 from tactile6d.runtime.executor import cancel_unless_interrupted
@@ -85,6 +94,7 @@ class TrackSettings:
     max_agreement: float
     penetration_margin: float
     redetect_every: int
+    lift_wait: int
     light_every: int
     threads: int
     read_ahead: int
@@ -99,6 +109,8 @@ class TrackSettings:
             raise ConfigError("track.max_residual, max_agreement and penetration_margin must be >= 0")
         if self.redetect_every < 0 or self.light_every < 0:
             raise ConfigError("track.redetect_every and track.light_every must be >= 0 (0: never)")
+        if self.lift_wait < 0:
+            raise ConfigError(f"track.lift_wait must be >= 0 frames (0: no wait), got {self.lift_wait}")
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> TrackSettings:
@@ -115,8 +127,9 @@ class TrackedFrame:
 
     pose (4, 4) ``T_world_object``, the reported hypothesis's (NaN before any pose was found); mode:
     ``redetect`` (estimated from scratch), ``update`` (the hypotheses refined) or ``hold`` (the last pose
-    kept: no image showed contact, or the re-detection that ``reason`` asked for matched nothing); reason:
-    why this frame was re-detected (``start``, ``request``, ``periodic``, ``fit``) or None; confidence: the
+    kept: no image showed contact, the re-detection that ``reason`` asked for matched nothing, or every
+    hypothesis failed the fit check while a sensor was lifted, reason ``lift``); reason: why this frame was
+    re-detected (``start``, ``request``, ``periodic``, ``fit``), ``lift`` on such a hold, or None; confidence: the
     calibrated P(ADI < 1 cm) of the last re-detection (module docstring), None without a confidence model;
     ambiguous: whether another pose followed explains the frames about as well as the reported one (module
     docstring; False without a confidence model);
@@ -124,8 +137,8 @@ class TrackedFrame:
     of the touching sensors' contacts; agreement: render-and-compare cost (mean over sensors of 1 - mask
     IoU and the share of untouched gel pressed); penetration (m): the deepest sensor penetration, through
     the corrected sensor poses (on a re-detected frame: the single-shot best's, through the poses given);
-    residual and agreement are NaN on a re-detected or held frame. fit_ok: False only on a re-detection
-    that matched nothing; seconds: wall-clock time of the frame; estimate: the single-shot ``Estimate`` of a
+    residual and agreement are NaN on a re-detected or held frame. fit_ok: False on a re-detection that
+    matched nothing and on a ``lift`` hold; seconds: wall-clock time of the frame; estimate: the single-shot ``Estimate`` of a
     re-detected frame, else None.
     """
 
@@ -217,6 +230,8 @@ class Tracker:
         self._frames_since_light = 0
         self._frames_since_redetect = 0
         self._requested = False
+        self._touching_at_redetect: np.ndarray | None = None  # (L,) the sensors touching at the last re-detection
+        self._frames_lifted = 0  # consecutive frames on which one of those showed no contact
 
     @property
     def pose(self) -> np.ndarray | None:
@@ -324,8 +339,9 @@ class Tracker:
         touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
         if not touching.any():
             return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
-        answer = self._follow(T, raw, backgrounds, contacts, touching, start)
-        if reason is not None and answer.mode == "update":
+        lifted = self._lift_waits(touching)
+        answer = self._follow(T, raw, backgrounds, contacts, touching, start, lifted)
+        if reason is not None and answer.mode == "update" and not (lifted and reason == "periodic"):
             # Requested or periodic: the frame's single-shot poses join the hypotheses followed, which were
             # scored on this frame too; the evidence decides between them from here on. Read under a light
             # fitted this frame, its images are what the single-shot estimate would read: not read twice.
@@ -344,6 +360,14 @@ class Tracker:
         if self.settings.redetect_every and self._frames_since_redetect >= self.settings.redetect_every:
             return "periodic"
         return None
+
+    def _lift_waits(self, touching: np.ndarray) -> bool:
+        """Whether a sensor that touched at the last re-detection shows no contact (touching (L,)) and has for
+        at most ``lift_wait`` frames: re-detections then wait (module docstring)."""
+        before = self._touching_at_redetect
+        lifted = before is not None and len(before) == len(touching) and bool((before & ~touching).any())
+        self._frames_lifted = self._frames_lifted + 1 if lifted else 0
+        return lifted and self._frames_lifted <= self.settings.lift_wait
 
     def _light_is_stale(self, n_sensors: int) -> bool:
         """Whether the light is fitted anew this frame: ``light_every`` frames on, or a sensor count
@@ -376,9 +400,10 @@ class Tracker:
         return patches_to_contacts(patches, T)
 
     def _follow(self, T: np.ndarray, images, backgrounds, contacts: Contacts, touching: np.ndarray,
-                start: float) -> TrackedFrame:
+                start: float, lifted: bool = False) -> TrackedFrame:
         """Each hypothesis refined and scored against this frame; those failing the fit check dropped, the
-        rest's evidence updated; the one with the least evidence reported (a re-detection when none is left)."""
+        rest's evidence updated; the one with the least evidence reported (a re-detection when none is left,
+        or, while a lifted sensor makes re-detections wait, the last pose held and every hypothesis kept)."""
         s = self.settings
         candidates, owners = [], []
         leader = self._leader()
@@ -390,10 +415,11 @@ class Tracker:
                 owners.append(k)
         scored = self._score(np.stack(candidates), T, contacts, touching)
         owners = np.array(owners)
-        kept = []
+        kept, contacts_fit = [], False
         for k, h in enumerate(self._hypotheses):
             mine = np.flatnonzero(owners == k)
             best = int(mine[np.argmin(scored.scores[mine])])
+            contacts_fit = contacts_fit or scored.residual[best] <= s.max_residual
             if not (scored.residual[best] <= s.max_residual and scored.agreement[best] <= s.max_agreement
                     and scored.penetration[best] <= self._penetration_limit):
                 continue  # this frame rules it out
@@ -401,6 +427,10 @@ class Tracker:
             h.evidence += (scored.scores[best] - h.evidence) / s.evidence_frames
             h.terms = (scored.residual[best], scored.agreement[best], scored.penetration[best])
             kept.append(h)
+        if not kept and lifted and contacts_fit:
+            # The touching sensors' contacts still fit: the images' agreement or the penetration failed, as a
+            # finger lifting off or coming back (its gel barely pressed) makes them fail.
+            return self._answer(self.pose, "hold", "lift", touching, np.nan, np.nan, np.nan, False, start)
         self._hypotheses = _merged(kept, self.estimator.settings.rank)
         if not self._hypotheses:
             return self._redetect(T, images, backgrounds, "fit", start)
@@ -432,7 +462,7 @@ class Tracker:
         est = self.estimator
         r, sensors = est.settings.rank, est.settings.sensors
         on = np.flatnonzero(touching)
-        sub = _select_sensors(contacts, on)
+        sub = contacts.of_sensors(on)
         w = float(r.refine_normal_weight)
         fit = refinement.SurfaceFit(est.surface, sub.points, sub.normals, w, sub.offsets(r.refine_offset))
         extra, owners = sub.patch_points(T[on], int(r.refine_patch_points))
@@ -466,14 +496,18 @@ class Tracker:
                   read: tuple[np.ndarray, Contacts] | None = None) -> TrackedFrame:
         """The frame (images as given) estimated from scratch; the light's fits and the confidence are taken
         from it. Its poses that explain the contacts about equally well become the hypotheses followed, or
-        with ``keep`` join those followed so far (the ``hypotheses`` with the least evidence are kept). When
-        it matches nothing (``NoMatch``: e.g. a lifted sensor's image read as a contact of no database image),
-        the last pose is held, marked as failing the fit check, and the next frame tries again. read: the
-        images brought to their light by fits made this frame (``self._light``) and their contacts, which
-        the estimate then takes instead of fitting and reading them again (the same estimate, sooner)."""
+        with ``keep`` join those followed so far (the ``hypotheses`` with the least evidence are kept). A
+        sensor lifted off is left out of the estimate as out of an update (no warning: each frame's
+        ``touching`` says which sensors touch). When it matches nothing (``NoMatch``: e.g. a barely pressed
+        gel's image read as a contact of no database image), the last pose is held, marked as failing the fit
+        check, and the next frame tries again. read: the images brought to their light by fits made this frame
+        (``self._light``) and their contacts, which the estimate then takes instead of fitting and reading them
+        again (the same estimate, sooner)."""
         try:
-            estimate = self.estimator.estimate(T, images, backgrounds) if read is None else self._estimate_read(
-                T, *read, backgrounds)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UntouchedSensorWarning)
+                estimate = self.estimator.estimate(T, images, backgrounds) if read is None else self._estimate_read(
+                    T, *read, backgrounds)
         except NoMatch:
             touching = np.zeros(len(T), dtype=bool)
             return self._answer(self.pose, "hold", reason, touching, np.nan, np.nan, np.nan, False, start)
@@ -483,6 +517,7 @@ class Tracker:
             # No image shows contact: the estimate stands on the sensors' landmarks alone, not on the object.
             return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
         self._requested = False
+        self._touching_at_redetect, self._frames_lifted = touching, 0
         self._light = estimate.light
         self._frames_since_light = 0
         self._frames_since_redetect = 0
@@ -537,13 +572,6 @@ def _merged(hypotheses: list[_Hypothesis], rank) -> list[_Hypothesis]:
                    and rotation_angle(T[:3, :3], o.poses[-1][:3, :3]) <= np.radians(rank.dedup_rotation) for o in kept):
             kept.append(hypotheses[k])
     return kept
-
-
-def _select_sensors(contacts: Contacts, on: np.ndarray) -> Contacts:
-    """The contacts of the sensors ``on`` (K,) only."""
-    pick = (lambda a: None if a is None else a[on])
-    return Contacts(contacts.points[on], contacts.normals[on], contacts.from_patch[on], pick(contacts.masks),
-                    pick(contacts.depths))
 
 
 @dataclass

@@ -83,7 +83,8 @@ def summarise_sequence(track: dict[str, np.ndarray], single: dict[str, np.ndarra
     """One sequence's figures, centimetres and seconds.
 
     track: the tracker's per-frame errors (``pose_errors``, F frames); single: single-shot errors on the
-    ``compared`` frames (C,) indices; modes (F,) the tracker's ``TrackedFrame.mode``; seconds (F,) its
+    ``compared`` frames (C,) indices, NaN where the estimate failed (counted in ``single_failed``, left out of the
+    medians and means); modes (F,) the tracker's ``TrackedFrame.mode``; seconds (F,) its
     wall-clock time per frame; lost_threshold (m): the error over which a frame counts as lost.
     """
     position = np.asarray(track["position"], dtype=np.float64)
@@ -98,6 +99,7 @@ def summarise_sequence(track: dict[str, np.ndarray], single: dict[str, np.ndarra
         "track_position_cm_median_compared": 100 * float(np.nanmedian(position[compared])),
         "single_position_cm_median": 100 * float(np.nanmedian(single["position"])),
         "single_position_cm_mean": 100 * float(np.nanmean(single["position"])),
+        "single_failed": int(np.isnan(single["position"]).sum()),
         "longest_over_s": longest_over(position, lost_threshold, fps),
         "redetections": int(sum(m == "redetect" for m in modes)),
         "held": int(sum(m == "hold" for m in modes)),
@@ -134,6 +136,7 @@ def summarise_set(per_sequence: list[dict], track_position: np.ndarray, single_p
         "track_position_cm_median_compared": 100 * float(np.nanmedian(track_position_compared)),
         "single_position_cm_median": 100 * float(np.nanmedian(single_position)),
         "single_position_cm_mean": 100 * float(np.nanmean(single_position)),
+        "single_failed": int(np.isnan(single_position).sum()),
         "longest_over_s_max": max(s["longest_over_s"] for s in per_sequence),
         "redetections": int(sum(s["redetections"] for s in per_sequence)),
         "update_ms_median": float(np.nanmedian([s["update_ms_median"] for s in per_sequence])),

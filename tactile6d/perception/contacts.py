@@ -9,7 +9,9 @@ Two sources (config ``select.contacts``):
 - ``patch``: each image's contact patch (``tactile6d.patch.image_to_patch``): the object's surface point
   where it presses deepest and its normal there, wherever on the gel that is and however the sensor is
   tilted. The points lie on the surface. A sensor whose image shows no contact keeps its landmark
-  (``from_patch`` says which), so that an estimate still has one point per sensor.
+  (``from_patch`` says which), so that every sensor still has a point; but when another sensor's image
+  does show contact, the object is taken not to touch it (``Contacts.touching``): selection and the fit
+  then use the touching sensors alone, and the ranking checks that no pose presses the others.
 
 The patch source also keeps each sensor's observed contact mask and press depth on the image, which
 render-and-compare ranking checks hypotheses against (``tactile6d.estimation.render_and_compare``).
@@ -17,6 +19,7 @@ render-and-compare ranking checks hypotheses against (``tactile6d.estimation.ren
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -49,6 +52,23 @@ class Contacts:
         """Whether the observed patches are known (render-and-compare can use them)."""
         return self.masks is not None
 
+    @property
+    def touching(self) -> np.ndarray:
+        """(L,) bool: the sensors the object touches, as far as the images tell.
+
+        Read from images, a sensor whose image shows no contact does not touch (a finger lifted off, or one
+        that missed the object), provided another sensor's image shows contact. Landmarks, or images none of
+        which shows contact, tell nothing: every sensor then counts as touching (the paper's assumption).
+        """
+        if not self.observed or not self.from_patch.any():
+            return np.ones(len(self.points), dtype=bool)
+        return self.from_patch.copy()
+
+    def of_sensors(self, on: np.ndarray) -> Contacts:
+        """The contacts of the sensors ``on`` (K,) int only, in that order."""
+        pick = (lambda a: None if a is None else a[on])
+        return Contacts(self.points[on], self.normals[on], self.from_patch[on], pick(self.masks), pick(self.depths))
+
     def offsets(self, landmark_offset: float) -> np.ndarray:
         """(L,) m: how far outside the object's surface each point should sit: 0 for a point read from its
         image, ``landmark_offset`` for a landmark (its distance depends on the press, a config value)."""
@@ -76,6 +96,24 @@ class Contacts:
         if not points:
             return np.zeros((0, 3)), np.zeros(0, dtype=int)
         return np.concatenate(points), np.concatenate(owners)
+
+
+class UntouchedSensorWarning(UserWarning):
+    """Some sensors' images show no contact while others' do: the estimate rests on those that do."""
+
+
+def warn_if_untouched(contacts: Contacts, stacklevel: int = 4) -> None:
+    """An ``UntouchedSensorWarning`` naming the sensors the object does not touch (``Contacts.touching``),
+    when there are any. stacklevel: as ``warnings.warn``'s."""
+    touching = contacts.touching
+    if touching.all():
+        return
+    off, on = np.flatnonzero(~touching), np.flatnonzero(touching)
+    warnings.warn(f"no contact in the image of sensor(s) {', '.join(map(str, off))}: the pose rests on sensor(s) "
+                  f"{', '.join(map(str, on))} (a pose that presses the others is penalised)"
+                  + ("; with one contact it is under-determined (the rotation about its normal and a slide along "
+                     "the surface are not observed)" if len(on) == 1 else ""),
+                  UntouchedSensorWarning, stacklevel=stacklevel)
 
 
 def sensors_to_landmark_contacts(T_world_sensors: np.ndarray) -> Contacts:
