@@ -32,9 +32,9 @@ rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose 
   again, and when every hypothesis fails the fit check but the touching sensors' contacts still fit one (the
   images' agreement or the penetration failed, as they do while a gel is barely pressed) the last pose is
   held (``hold``, reason ``lift``, ``fit_ok`` False) and the hypotheses are refined again on the next frame.
-  Contacts that fit no hypothesis (the object moved or swapped) are re-detected at once. With one contact fewer the
-  object's pose is less determined (two contacts leave a cylinder free to slide along its axis), and a
-  single-shot estimate from the others is then worse than the pose followed so far.
+  Contacts that fit no hypothesis (the object moved or swapped) are re-detected at once. With one contact
+  fewer the object's pose is less determined (two contacts leave a cylinder free to slide along its axis),
+  and a single-shot estimate from the others is then worse than the pose followed so far.
 - a frame where no image shows contact holds the last pose (nothing to fit), as does a re-detection that
   matches nothing (then the next frame is re-detected again).
 
@@ -129,8 +129,8 @@ class TrackedFrame:
     ``redetect`` (estimated from scratch), ``update`` (the hypotheses refined) or ``hold`` (the last pose
     kept: no image showed contact, the re-detection that ``reason`` asked for matched nothing, or every
     hypothesis failed the fit check while a sensor was lifted, reason ``lift``); reason: why this frame was
-    re-detected (``start``, ``request``, ``periodic``, ``fit``), ``lift`` on such a hold, or None; confidence: the
-    calibrated P(ADI < 1 cm) of the last re-detection (module docstring), None without a confidence model;
+    re-detected (``start``, ``request``, ``periodic``, ``fit``), ``lift`` on such a hold, or None; confidence:
+    the calibrated P(ADI < 1 cm) of the last re-detection (module docstring), None without a confidence model;
     ambiguous: whether another pose followed explains the frames about as well as the reported one (module
     docstring; False without a confidence model);
     touching (L,) bool: the sensors whose image shows contact; residual (m): mean point-to-plane residual
@@ -138,8 +138,8 @@ class TrackedFrame:
     IoU and the share of untouched gel pressed); penetration (m): the deepest sensor penetration, through
     the corrected sensor poses (on a re-detected frame: the single-shot best's, through the poses given);
     residual and agreement are NaN on a re-detected or held frame. fit_ok: False on a re-detection that
-    matched nothing and on a ``lift`` hold; seconds: wall-clock time of the frame; estimate: the single-shot ``Estimate`` of a
-    re-detected frame, else None.
+    matched nothing and on a ``lift`` hold; seconds: wall-clock time of the frame; estimate: the single-shot
+    ``Estimate`` of a re-detected frame, else None.
     """
 
     pose: np.ndarray
@@ -363,7 +363,7 @@ class Tracker:
 
     def _lift_waits(self, touching: np.ndarray) -> bool:
         """Whether a sensor that touched at the last re-detection shows no contact (touching (L,)) and has for
-        at most ``lift_wait`` frames: re-detections then wait (module docstring)."""
+        at most ``lift_wait`` frames, this one counted: re-detections then wait (module docstring)."""
         before = self._touching_at_redetect
         lifted = before is not None and len(before) == len(touching) and bool((before & ~touching).any())
         self._frames_lifted = self._frames_lifted + 1 if lifted else 0
