@@ -419,7 +419,11 @@ def test_one_background_per_sensor_from_files_or_the_scene_folder(capsys, artifa
     # --background wins over the folder's
     code, out, err = run(capsys, *common, "--background", *one, "select.N=500", "select.align_light=false")
     assert code == 0 and np.ptp(angles_of(out)) > 1e-4
-    assert err == f"note: {in_folder}: --background given, the folder's background_<i>.png are not used\n"
+    note, *rest = err.splitlines()
+    assert note == f"note: {in_folder}: --background given, the folder's background_<i>.png are not used"
+    # read against a frame of other colours, unit 0's press is not seen: that sensor is left out, and said so
+    assert rest == [f"warning: {in_folder}: no contact in the image of sensor(s) 0: the pose rests on sensor(s) 1, 2 "
+                    "(a pose that presses the others is penalised)"]
 
 
 @pytest.mark.parametrize("case,message", [
