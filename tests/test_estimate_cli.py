@@ -241,11 +241,11 @@ def zero_axis_scene(scene, folder):
 
 
 def test_several_scenes_in_one_call_load_the_artifacts_once(capsys, artifacts, scene, tmp_path, monkeypatch):
-    from tactile6d.cli import estimate as command
+    from tactile6d.estimation.estimator import Estimator
 
     loads = []
-    original = command.Estimator.from_artifacts
-    monkeypatch.setattr(command.Estimator, "from_artifacts",
+    original = Estimator.from_artifacts
+    monkeypatch.setattr(Estimator, "from_artifacts",
                         lambda *a, **k: loads.append(a[0]) or original(*a, **k))
     folders = [copy_scene(scene, tmp_path / name) for name in ("a", "b", "c")]
     # the overrides come after the folders: they are told apart by their key=value form

@@ -28,6 +28,7 @@ import sys
 import warnings
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,9 +40,10 @@ from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import line_to_pose
 from tactile6d.data.hdf5 import read_scene_dir
-from tactile6d.estimation.sensor_offsets import (KnownGrasp, SensorOffsets, fit_sensor_offsets, gel_centre_shifts,
-                                                 prior_sigmas)
 from tactile6d.perception import photometric
+
+if TYPE_CHECKING:
+    from tactile6d.estimation.sensor_offsets import KnownGrasp, SensorOffsets
 
 OBJECT_POSE_FILE = "object_pose.txt"
 # Fewer grasps than this leave most of an offset to its prior: said, not refused.
@@ -101,6 +103,8 @@ def object_pose_of(scene: Path, given: np.ndarray | None) -> np.ndarray:
 
 def read_grasp(scene: Path, name: str, cache: EstimatorCache, T_world_object: np.ndarray) -> KnownGrasp:
     """One grasp: its images brought to their no-contact images' light and read as the estimator reads them."""
+    from tactile6d.estimation.sensor_offsets import KnownGrasp  # the estimator's modules: not loaded for --help
+
     T_world_sensors, images = read_scene_dir(scene)
     backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), cache.background is not None)
     if note:
@@ -120,6 +124,8 @@ def report(offsets: SensorOffsets, out: Path, prior_gel_sigma: np.ndarray) -> st
     """The table printed after the fit: per sensor its offset, how far it moves the gel centre, the contact
     points' distance from the surface before and after, and what the grasps left uncertain (prior_gel_sigma
     (3,) m: what the prior alone leaves, ``sensor_offsets.prior_sigmas``)."""
+    from tactile6d.estimation.sensor_offsets import gel_centre_shifts
+
     t, r = offsets.translations_mm(), offsets.rotations_deg()
     moved = gel_centre_shifts(offsets.offsets)
     along, sideways = 1000 * offsets.gel_sigma_m[:, 0], 1000 * offsets.gel_sigma_m[:, 1:].max(axis=1)
@@ -145,6 +151,8 @@ def report(offsets: SensorOffsets, out: Path, prior_gel_sigma: np.ndarray) -> st
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     cfg = compose_config(list(args.overrides))
+    from tactile6d.estimation.sensor_offsets import fit_sensor_offsets, prior_sigmas
+
     if cfg.sensors.pose_sigma_mm <= 0 or cfg.sensors.pose_sigma_deg <= 0:
         raise InputError("calibrate-sensors needs the hand's expected error as its prior: sensors.pose_sigma_mm "
                          "and sensors.pose_sigma_deg > 0")

@@ -54,6 +54,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -62,12 +63,15 @@ from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
 from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir
-from tactile6d.estimation import confidence
-from tactile6d.estimation.estimator import Estimate, Estimator
-from tactile6d.estimation.optimize import use_cpu_devices_for
-from tactile6d.estimation.sensor_offsets import SensorOffsets, apply_sensor_offsets
 from tactile6d.perception import photometric
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+
+if TYPE_CHECKING:
+    from tactile6d.estimation.estimator import Estimate, Estimator
+    from tactile6d.estimation.sensor_offsets import SensorOffsets
+
+# The estimator's modules (torch, JAX, trimesh: seconds to import) are imported where a command uses them, so
+# that `--help` and a bad option answer at once (tests/test_cli_imports.py).
 
 AUTO = "auto"
 # Below this many scenes a progress bar is more noise than help.
@@ -126,9 +130,21 @@ def add_sensor_offsets_argument(parser: argparse.ArgumentParser, poses: str) -> 
                              "`tactile6d calibrate-sensors`)")
 
 
+def use_solver_devices(cfg) -> None:
+    """The solver's CPU devices set up (``optimize.use_cpu_devices_for``), before anything imports JAX's
+    computations; imported here, not at the top, since JAX takes seconds to load."""
+    from tactile6d.estimation.optimize import use_cpu_devices_for
+
+    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+
+
 def read_sensor_offsets(args: argparse.Namespace) -> SensorOffsets | None:
     """``--sensor-offsets``' file read, or None when not given."""
-    return SensorOffsets.read(args.sensor_offsets) if args.sensor_offsets else None
+    if not args.sensor_offsets:
+        return None
+    from tactile6d.estimation.sensor_offsets import SensorOffsets
+
+    return SensorOffsets.read(args.sensor_offsets)
 
 
 def split_overrides(words: list[str] | None, overrides: list[str]) -> tuple[list[str] | None, list[str]]:
@@ -193,6 +209,8 @@ class EstimatorCache:
     def load(self, name: str) -> Estimator:
         """The object's Estimator, loading it if not yet done; the Tactile6dError of a failed load."""
         if name not in self._loaded:
+            from tactile6d.estimation.estimator import Estimator
+
             t0 = time.perf_counter()
             try:
                 found = self.known.require_artifacts(name, baseline=self.cfg.select.method != "ours")
@@ -210,7 +228,11 @@ class EstimatorCache:
 
     def sensor_poses(self, T_world_sensors: np.ndarray) -> np.ndarray:
         """The sensor poses as read, corrected by the hand's offsets when there are any."""
-        return T_world_sensors if self.offsets is None else apply_sensor_offsets(T_world_sensors, self.offsets)
+        if self.offsets is None:
+            return T_world_sensors
+        from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
+
+        return apply_sensor_offsets(T_world_sensors, self.offsets)
 
     def get(self, name: str) -> tuple[Estimator, float]:
         """The object's Estimator and the seconds its loading took, counted once: 0.0 on later calls."""
@@ -254,6 +276,8 @@ def summary(result: Estimate, cfg) -> list[str]:
 def confidence_lines(result: Estimate) -> list[str]:
     """The confidence line and, when other poses explain the contacts about equally well, one that says so;
     one note when the artifacts hold no confidence model."""
+    from tactile6d.estimation import confidence
+
     within = f"{100 * confidence.SUCCESS_ADI:g} cm ADI"
     if result.confidence is None:
         return ["confidence: none (no confidence model; `dvc repro calibrate_confidence` makes it)"]
@@ -403,7 +427,7 @@ def main(argv: list[str]) -> int:
     args = parse_args(argv)
     overrides = list(args.overrides) + ([f"rank.top_k={args.top}"] if args.top is not None else [])
     cfg = compose_config(overrides)
-    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    use_solver_devices(cfg)
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     known = KnownObjects(artifacts, cfg)
     if args.object != AUTO:

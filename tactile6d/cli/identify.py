@@ -26,19 +26,20 @@ import json
 import sys
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tactile6d.cli.estimate import (add_sensor_offsets_argument, is_override, read_sensor_offsets, scene_backgrounds,
-                                    split_overrides, warnings_to_lines)
+                                    split_overrides, use_solver_devices, warnings_to_lines)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import pose_to_line
 from tactile6d.data.hdf5 import read_background_images, read_scene_dir
-from tactile6d.estimation.identifier import Identification, Identifier
-from tactile6d.estimation.optimize import use_cpu_devices_for
-from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 from tactile6d.perception.photometric import LightWarning
+
+if TYPE_CHECKING:
+    from tactile6d.estimation.identifier import Identification
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -94,13 +95,16 @@ def library_of(names: list[str] | None, known: KnownObjects) -> tuple[list[str],
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     cfg = compose_config(args.overrides)
-    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    use_solver_devices(cfg)
+    from tactile6d.estimation.identifier import Identifier  # torch, JAX: not loaded for --help
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     known = KnownObjects(artifacts, cfg)
     objects, distractors, own = library_of(args.objects, known)
     T_world_sensors, images = read_scene_dir(args.scene)
     offsets = read_sensor_offsets(args)
     if offsets is not None:
+        from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
+
         T_world_sensors = apply_sensor_offsets(T_world_sensors, offsets)
     background = read_background_images(args.background) if args.background else None
     backgrounds, note = scene_backgrounds(Path(args.scene), len(T_world_sensors), background is not None)

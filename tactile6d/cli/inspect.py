@@ -33,6 +33,7 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -42,8 +43,13 @@ from tactile6d.core.config import compose_config
 from tactile6d.core.errors import DataError, InputError
 from tactile6d.core.settings import SelectSettings, SensorSettings
 from tactile6d.data.hdf5 import read_background_images, read_scene_dir
-from tactile6d.perception import encode, inputs, photometric
-from tactile6d.perception.contact_patch import ContactPatch, PatchModel, image_to_patch, point_to_pixel
+from tactile6d.perception import inputs, photometric
+
+if TYPE_CHECKING:
+    from tactile6d.perception.contact_patch import ContactPatch, PatchModel
+
+# perception.encode and contact_patch (torch, trimesh: seconds to load) are imported where they are used, so that
+# --help answers at once.
 
 
 @dataclass(frozen=True)
@@ -112,6 +118,9 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
         inputs.check_bodies_apart(T, inputs.body_overlap_margin(sensors.pair_distance_tolerance))
     except InputError as exc:
         scene_problems.append(str(exc))
+    from tactile6d.perception import encode
+    from tactile6d.perception.contact_patch import image_to_patch
+
     aligned, fits = encode.align_light(select, images, per_sensor)
     units = [None] * len(images) if fits is None else photometric.unit_problems(images, per_sensor, fits)
     sensors = []
@@ -135,6 +144,8 @@ def contact_summary(patch: ContactPatch | None) -> dict:
     the gel's centre), ``pixel`` (row, column), ``depth_mm`` (deepest press), ``area_percent`` (of the image's
     pixels), ``tilt_deg`` (the surface normal's angle from the camera's axis, sensor x); ``noise`` (grey levels)
     when the image was read."""
+    from tactile6d.perception.contact_patch import point_to_pixel
+
     if patch is None:
         return {"contact": None}
     out = {"contact": bool(patch.contact), "noise": round(float(patch.noise), 2)}
@@ -222,6 +233,8 @@ def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray 
     own, _ = scene_backgrounds(scene, n_sensors, False)
     if own is not None:
         return own, "the folder's background_<i>.png"
+    from tactile6d.perception import encode
+
     return encode.load_background(cfg), f"render.background ({cfg.render.background})"
 
 
@@ -244,6 +257,8 @@ def main(argv: list[str]) -> int:
     T_world_sensors, images = read_scene_dir(scene)
     given = read_background_images(args.background) if args.background else None
     backgrounds, source = scene_backgrounds_or_default(scene, len(T_world_sensors), given, cfg)
+    from tactile6d.perception import encode
+
     model = encode.load_patch_model(artifacts)
     reading = read_scene(T_world_sensors, images, backgrounds, model, SelectSettings.from_cfg(cfg.select),
                          SensorSettings.from_cfg(cfg.sensors))

@@ -28,8 +28,6 @@ from pathlib import Path
 from tactile6d.core.config import CONF_DIR
 from tactile6d.core.errors import ArtifactError, InputError
 from tactile6d.data import layout
-from tactile6d.data.object_artifacts import DISTRACTOR_STAGES, OWN_STAGES
-from tactile6d.sim.mesh_import import own_objects
 
 # The per-object artifacts an estimate reads: (path of an object's file, the stage that makes it, needed by
 # the baseline too). The database itself is not read: DVC renders it on the way to encode_database.
@@ -70,6 +68,8 @@ class KnownObjects:
         self.distractors = list(dict.fromkeys([*self.distractors_with_artifacts,
                                                *(str(n) for n in cfg.identify.distractors)]))
         self.own_with_artifacts = objects_with_artifacts(layout.own_dir(self.artifacts))
+        from tactile6d.sim.mesh_import import own_objects  # trimesh: loaded when a command runs, not for its --help
+
         self.own_configured = list(own_objects(cfg))
         self.own = list(dict.fromkeys([*self.own_with_artifacts, *self.own_configured]))
 
@@ -109,6 +109,8 @@ class KnownObjects:
         if not missing:
             return known
         files = ", ".join(str(path) for path, _ in missing)
+        from tactile6d.data.object_artifacts import DISTRACTOR_STAGES, OWN_STAGES
+
         if known.distractor:
             targets = [DISTRACTOR_STAGES[stage] for _, stage in missing]
         elif known.kind == "own" and name in self.own_configured:

@@ -42,21 +42,23 @@ import warnings
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tactile6d.cli.estimate import (EstimatorCache, add_sensor_offsets_argument, read_sensor_offsets, split_overrides,
-                                    write)
+                                    use_solver_devices, write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import pose_to_line, text_to_poses
 from tactile6d.data import bop, rosbag_io, sequence_dirs
 from tactile6d.data.hdf5 import read_background_images
-from tactile6d.estimation.optimize import use_cpu_devices_for
-from tactile6d.estimation.tracker import TrackedFrame, Tracker, TrackSettings
 from tactile6d.perception import photometric
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+
+if TYPE_CHECKING:
+    from tactile6d.estimation.tracker import TrackedFrame
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -155,7 +157,8 @@ def warning_lines(caught: list[warnings.WarningMessage]) -> list[str]:
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     cfg = compose_config(args.overrides)
-    use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+    use_solver_devices(cfg)
+    from tactile6d.estimation.tracker import Tracker, TrackSettings  # torch, JAX: not loaded for --help
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     background = read_background_images(args.background) if args.background else None
     cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args))
