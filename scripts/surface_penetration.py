@@ -1,6 +1,7 @@
 """Would the ranking choose better if it measured penetration against the object's real surface?
 
     python scripts/surface_penetration.py --artifacts artifacts --scenes validation kinematic [override ...]
+    python scripts/surface_penetration.py --artifacts artifacts --sequences [--true-sensors] [override ...]
 
 The ranking's re-scoring (``rank.rank``) charges each refined candidate for its deepest penetration into a
 DIGIT body, measured with the object's convex pieces, which bury part of a concave object's surface under
@@ -10,8 +11,14 @@ surface samples (``surface_sampling.sample_surface``, 1 mm apart): the deepest s
 through the corrected sensor poses as the ranking uses them. The first ranking (branch and bound over every
 hypothesis) keeps the pieces either way. Prints per set the positional error of the best pose, mean (median)
 cm, and how many are over 1 cm off, for both; then, over all scenes, the mean paired difference (surface minus
-pieces) with a bootstrap 90 % interval. A diagnostic: it swaps ``rank.seen_penetrations`` for the run and
-writes nothing.
+pieces) with a bootstrap 90 % interval.
+
+``--sequences``: the tracking sequences instead (``artifacts/sequences/tracking.h5``, stage make_sequences), each
+followed by the tracker (``Tracker.update`` frame by frame, as stage evaluate_tracking follows them), whose
+updates score their refined poses with ``rank.seen_penetrations`` too, once with the pieces and once with the
+surface; through the sensor poses as the hand reports them, or with ``--true-sensors`` the true ones. Prints per
+sequence and pooled the tracked positional error's median and mean (cm) and the longest run of frames over 2 cm
+(s), for both. A diagnostic: it swaps ``rank.seen_penetrations`` for the run and writes nothing.
 """
 
 from __future__ import annotations
@@ -33,6 +40,10 @@ from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.estimation import collision  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
+from tactile6d.estimation.optimize import use_cpu_devices_for  # noqa: E402
+from tactile6d.estimation.tracker import Tracker, TrackSettings  # noqa: E402
+from tactile6d.evaluation import scoring  # noqa: E402
+from tactile6d.evaluation import tracking_accuracy as accuracy  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
 
 _BOX_RADIUS = float(np.linalg.norm(BOX_HALF_EXTENTS))
@@ -72,15 +83,55 @@ def surface_penetration(surfaces: dict[int, object]):
         rank_module.seen_penetrations = original
 
 
+def track_sequences(artifacts: str, cfg, true_sensors: bool) -> None:
+    """Every tracking sequence followed with the pieces' penetration and with the surface's; prints each
+    sequence's and the pooled tracked positional error, median (mean) cm, and the longest run over 2 cm (s)."""
+    seq = read_artifact(layout.sequences_file(artifacts, "tracking"), "sequences")
+    fps = float(np.asarray(seq["fps"]).reshape(-1)[0])
+    lost = float(cfg.track.evaluation.lost_threshold)
+    poses = "T_world_sensors_true" if true_sensors else "T_world_sensors"
+    settings = TrackSettings.from_cfg(cfg.track)
+    pooled = {"pieces": [], "surface": []}
+    for q in range(len(seq["objects"])):
+        obj = str(seq["objects"][q])
+        estimator = Estimator.from_artifacts(obj, artifacts, cfg)
+        reference = scoring.load_object_reference(artifacts, obj)
+        truth, line = np.asarray(seq["T_world_object"][q]), f"{seq['names'][q]}:"
+        for mode in pooled:
+            surfaces = {id(estimator.penetration_model): estimator.surface}
+            swapped = surface_penetration(surfaces) if mode == "surface" else nullcontext()
+            with swapped, Tracker(estimator, settings) as tracker:
+                answers = accuracy.track_frames(tracker.update, np.asarray(seq[poses][q]), np.asarray(seq["images"][q]))
+            error = accuracy.pose_errors(reference.points, np.stack([a.pose for a in answers]), truth,
+                                         reference.tree)["position"]
+            pooled[mode].append(error)
+            line += (f"  {mode} {100 * np.nanmedian(error):.2f} ({100 * np.nanmean(error):.2f}) cm, "
+                     f"longest over {100 * lost:g} cm {accuracy.longest_over(error, lost, fps):.2f} s")
+        print(line, flush=True)
+    for mode, errors in pooled.items():
+        e = np.concatenate(errors)
+        longest = max(accuracy.longest_over(x, lost, fps) for x in errors)
+        print(f"all {len(e)} frames, {mode}: {100 * np.nanmedian(e):.2f} ({100 * np.nanmean(e):.2f}) cm, longest over "
+              f"{100 * lost:g} cm {longest:.2f} s")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--artifacts", default="artifacts")
-    parser.add_argument("--scenes", nargs="+", required=True, help="scene sets (artifacts/scenes/<set>.h5)")
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--scenes", nargs="+", help="scene sets (artifacts/scenes/<set>.h5)")
+    which.add_argument("--sequences", action="store_true", help="the tracking sequences, tracked")
+    parser.add_argument("--true-sensors", action="store_true", help="with --sequences: through the true sensor poses")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
     args = parser.parse_args(argv)
     cfg = compose_config(args.overrides)
     if cfg.sensors.pose_sigma_mm == 0 and cfg.sensors.pose_sigma_deg == 0:
         raise SystemExit("with the sensor poses declared exact the ranking scores no corrected sensors: nothing to swap")
+    if args.sequences:
+        # JAX's host devices as stage evaluate_tracking sets them, so that the pieces' runs are the stage's
+        use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
+        track_sequences(args.artifacts, cfg, args.true_sensors)
+        return 0
     estimators, surfaces, pooled = {}, {}, {"pieces": [], "surface": []}
     for scene_set in args.scenes:
         scenes = read_artifact(layout.scenes_file(args.artifacts, scene_set), "scenes")
