@@ -226,48 +226,87 @@ def rank(
     if not (settings.refine or compare):
         return first
     candidates, new_losses, depths, n_scored = first.poses, first.losses, first.penetrations, first.n_scored
-    scored_depths, correction_cost = depths, 0.0
-    seen = None  # (P, L, 4, 4) the object as each corrected sensor sees it, when the sensors are corrected
     if settings.refine:
-        # Refined against the sensors the object touches; scored below through every sensor.
-        on = np.flatnonzero(contacts.touching)
-        touched = contacts if len(on) == len(contacts.points) else contacts.of_sensors(on)
-        s, w = touched.points, float(settings.refine_normal_weight)
-        fit = refinement.SurfaceFit(surface, s, touched.normals, w, touched.offsets(settings.refine_offset))
-        extra, owners = touched.patch_points(T_world_sensors[on], int(settings.refine_patch_points))
-        # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
-        per_sensor = np.bincount(owners, minlength=len(s))[owners]
-        extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
-        if not sensors.exact:
-            sigma_contact, sigma_angle = sensors.correction_sigmas
-            candidates, seen_touched = refinement.refine_poses_and_sensors(
-                fit, candidates, sigma_contact, sigma_angle, n_iterations=int(settings.refine_iterations),
-                patch_points=extra, patch_weights=extra_w, patch_owners=owners)
-            correction_cost = refinement.sensor_corrections_cost(candidates, seen_touched, s, sigma_contact,
-                                                                 sigma_angle)
-            seen = seen_touched
-            if touched is not contacts:  # a sensor the object does not touch has no correction to see it through
-                seen = np.repeat(candidates[:, None], len(contacts.points), axis=1)
-                seen[:, on] = seen_touched
-        else:
-            candidates = refinement.refine_poses(fit, candidates, int(settings.refine_iterations),
-                                                 patch_points=extra, patch_weights=extra_w)
-        distance, angle = refinement.surface_losses(fit, candidates if seen is None else seen_touched)
-        new_losses = distance + w * angle
+        refined = refine_and_score(model, surface, mesh if compare else None, candidates, T_world_sensors, contacts,
+                                   settings, sensors, int(settings.refine_iterations))
+        candidates, new_losses, scores = refined.poses, refined.losses, refined.scores
         # Reported: the penetrations through the sensor poses as given; scored: through the corrected ones.
-        depths = collision.poses_to_penetrations(model, candidates, T_world_sensors)
-        scored_depths = depths if seen is None else seen_penetrations(model, seen, T_world_sensors)
+        depths = refined.depths if sensors.exact else collision.poses_to_penetrations(model, candidates, T_world_sensors)
         n_scored += len(candidates)
-    scores = new_losses + penetration_cost(scored_depths, sensors.contact_sigma)
-    scores = scores + settings.pose_correction_weight * correction_cost
-    if compare:
-        scores = scores + settings.agreement_weight * agreement_cost(
-            mesh, candidates if seen is None else seen, T_world_sensors, contacts, settings)
+    else:  # render-and-compare alone
+        scores = new_losses + penetration_cost(depths, sensors.contact_sigma)
+        scores = scores + settings.agreement_weight * agreement_cost(mesh, candidates, T_world_sensors, contacts, settings)
     kept = distinct_in_order(
         candidates, np.lexsort((np.arange(len(scores)), scores)), float(settings.dedup_translation),
         float(np.radians(settings.dedup_rotation)), int(settings.top_k),
     )
     return RankedPoses(candidates[kept], scores[kept], new_losses[kept], depths[kept], first.index[kept], n_scored)
+
+
+@dataclass(frozen=True)
+class RefinedScores:
+    """Candidates refined against the touching sensors' contacts and scored term by term (``refine_and_score``).
+
+    poses (P, 4, 4) the refined ``T_world_object``; scores (P,) m; losses (P,) m, ``d + refine_normal_weight * a``;
+    distance (P,) m, d alone (the mean point-to-plane residual); depths (P, L) m, each sensor's penetration as
+    scored (through its corrected pose when it touches and the sensors are corrected); agreement (P,), the
+    render-and-compare cost before its weight (0 when not computed).
+    """
+
+    poses: np.ndarray
+    scores: np.ndarray
+    losses: np.ndarray
+    distance: np.ndarray
+    depths: np.ndarray
+    agreement: np.ndarray
+
+
+def refine_and_score(model: collision.PenetrationModel, surface, mesh, poses: np.ndarray, T_world_sensors: np.ndarray,
+                     contacts: Contacts, settings: RankSettings, sensors: SensorSettings, n_iterations: int) -> RefinedScores:
+    """The ranking's re-scoring of candidate poses (P, 4, 4), as ``rank`` and the tracker's updates score them.
+
+    Each pose is refined against the touching sensors' contacts and patches (``refine``; with the sensors'
+    expected error, each touching sensor's pose corrected beside it, ``n_iterations`` steps) and scored through
+    every sensor: ``d + refine_normal_weight * a + penetration_cost(depths) + pose_correction_weight *
+    corrections``, plus ``agreement_weight`` times render-and-compare when ``mesh`` is given and the contacts
+    hold observed patches (a sensor whose image shows no contact pays for a pose that presses it). surface: the
+    object's surface samples; mesh: its mesh, or None to leave render-and-compare out.
+    """
+    # Refined against the sensors the object touches; scored below through every sensor.
+    on = np.flatnonzero(contacts.touching)
+    touched = contacts if len(on) == len(contacts.points) else contacts.of_sensors(on)
+    s, w = touched.points, float(settings.refine_normal_weight)
+    fit = refinement.SurfaceFit(surface, s, touched.normals, w, touched.offsets(settings.refine_offset))
+    extra, owners = touched.patch_points(T_world_sensors[on], int(settings.refine_patch_points))
+    # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
+    per_sensor = np.bincount(owners, minlength=len(s))[owners]
+    extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
+    correction_cost, seen = 0.0, None  # seen: (P, L, 4, 4) the object as each corrected sensor sees it
+    if not sensors.exact:
+        sigma_contact, sigma_angle = sensors.correction_sigmas
+        poses, seen_touched = refinement.refine_poses_and_sensors(
+            fit, poses, sigma_contact, sigma_angle, n_iterations=n_iterations,
+            patch_points=extra, patch_weights=extra_w, patch_owners=owners)
+        correction_cost = refinement.sensor_corrections_cost(poses, seen_touched, s, sigma_contact, sigma_angle)
+        seen = seen_touched
+        if touched is not contacts:  # a sensor the object does not touch has no correction to see it through
+            seen = np.repeat(poses[:, None], len(contacts.points), axis=1)
+            seen[:, on] = seen_touched
+    else:
+        poses = refinement.refine_poses(fit, poses, n_iterations, patch_points=extra, patch_weights=extra_w)
+    distance, angle = refinement.surface_losses(fit, poses if seen is None else seen_touched)
+    losses = distance + w * angle
+    if seen is None:
+        depths = collision.poses_to_penetrations(model, poses, T_world_sensors)
+    else:
+        depths = seen_penetrations(model, seen, T_world_sensors)
+    scores = losses + penetration_cost(depths, sensors.contact_sigma)
+    scores = scores + settings.pose_correction_weight * correction_cost
+    agreement = np.zeros(len(poses))
+    if mesh is not None and contacts.observed:
+        agreement = agreement_cost(mesh, poses if seen is None else seen, T_world_sensors, contacts, settings)
+        scores = scores + settings.agreement_weight * agreement
+    return RefinedScores(poses, scores, losses, distance, depths, agreement)
 
 
 def seen_penetrations(model: collision.PenetrationModel, seen: np.ndarray, T_world_sensors: np.ndarray) -> np.ndarray:

@@ -12,10 +12,9 @@ rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose 
   on ``threads`` threads in ``update``; in ``track``, which takes a stream of frames, on ``read_ahead``
   worker processes while the frame before is followed, the same answers sooner), and each hypothesis's
   last pose (the reported one's also moved on by its last motion: constant velocity) is refined against
-  them as the single-shot ranking refines its candidates (``refine.refine_poses_and_sensors``: each
-  sensor's small pose error estimated beside the object's pose, ``sensors.pose_sigma_mm``/``_deg``) and
-  scored as the ranking scores (surface fit + penetration beyond the sensor poses' allowance + the
-  corrections' cost + render-and-compare). Only the sensors whose image shows contact are fitted; every
+  them and scored by the single-shot ranking's own re-scoring (``rank.refine_and_score``: each sensor's
+  small pose error estimated beside the object's pose, ``sensors.pose_sigma_mm``/``_deg``; surface fit +
+  penetration beyond the sensor poses' allowance + the corrections' cost + render-and-compare). Only the sensors whose image shows contact are fitted; every
   sensor's image is compared, so a pose that presses a sensor whose image shows none pays for it.
 - **fit check**: a hypothesis whose refined pose does not fit the contacts (mean point-to-plane residual
   over ``max_residual``), disagrees with the images (render-and-compare cost over ``max_agreement``) or
@@ -70,7 +69,6 @@ from tactile6d.core.errors import ConfigError, InputError, NoMatch
 from tactile6d.core.geometry import invert_pose, rotation_angle
 from tactile6d.estimation import confidence
 from tactile6d.estimation import rank as rank_step
-from tactile6d.estimation import refine as refinement
 from tactile6d.estimation.estimator import Estimate, Estimator
 from tactile6d.perception import photometric
 from tactile6d.perception.contact_patch import image_to_patch
@@ -413,7 +411,7 @@ class Tracker:
             if k == leader and s.predict and len(h.poses) == 2:  # constant velocity: the last motion again
                 candidates.append(h.poses[-1] @ invert_pose(h.poses[-2]) @ h.poses[-1])
                 owners.append(k)
-        scored = self._score(np.stack(candidates), T, contacts, touching)
+        scored = self._score(np.stack(candidates), T, contacts)
         owners = np.array(owners)
         kept, contacts_fit = [], False
         for k, h in enumerate(self._hypotheses):
@@ -455,42 +453,14 @@ class Tracker:
         distances = confidence.distances_from_best(self.estimator.spread_points, poses)
         return len(confidence.distinct_poses(evidence, distances, model.ambiguity_ratio)) > 1
 
-    def _score(self, poses: np.ndarray, T: np.ndarray, contacts: Contacts, touching: np.ndarray) -> _Scored:
-        """The candidate poses refined against the touching sensors' contacts and scored as
-        ``rank.rank`` re-scores its candidates (surface fit, penetration beyond the allowance, the sensor
-        corrections' cost, render-and-compare over every sensor)."""
+    def _score(self, poses: np.ndarray, T: np.ndarray, contacts: Contacts) -> _Scored:
+        """The candidate poses refined against the touching sensors' contacts and scored as ``rank.rank``
+        re-scores its candidates (``rank.refine_and_score``: surface fit, penetration beyond the allowance, the
+        sensor corrections' cost, render-and-compare over every sensor), with ``refine_iterations`` steps."""
         est = self.estimator
-        r, sensors = est.settings.rank, est.settings.sensors
-        on = np.flatnonzero(touching)
-        sub = contacts.of_sensors(on)
-        w = float(r.refine_normal_weight)
-        fit = refinement.SurfaceFit(est.surface, sub.points, sub.normals, w, sub.offsets(r.refine_offset))
-        extra, owners = sub.patch_points(T[on], int(r.refine_patch_points))
-        per_sensor = np.bincount(owners, minlength=len(on))[owners]
-        extra_w = float(r.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
-        correction = np.zeros(len(poses))
-        if sensors.exact:
-            poses = refinement.refine_poses(fit, poses, self.settings.refine_iterations, patch_points=extra,
-                                            patch_weights=extra_w)
-            seen = np.repeat(poses[:, None], len(on), axis=1)
-        else:
-            sigma_contact, sigma_angle = sensors.correction_sigmas
-            poses, seen = refinement.refine_poses_and_sensors(
-                fit, poses, sigma_contact, sigma_angle, n_iterations=self.settings.refine_iterations,
-                patch_points=extra, patch_weights=extra_w, patch_owners=owners)
-            correction = refinement.sensor_corrections_cost(poses, seen, sub.points, sigma_contact, sigma_angle)
-        distance, angle = refinement.surface_losses(fit, seen)
-        # Every sensor sees the object through its correction when touching, as given otherwise.
-        seen_all = np.repeat(poses[:, None], len(T), axis=1)
-        seen_all[:, on] = seen
-        depths = rank_step.seen_penetrations(est.penetration_model, seen_all, T)
-        scores = (distance + w * angle + rank_step.penetration_cost(depths, sensors.contact_sigma)
-                  + r.pose_correction_weight * correction)
-        agreement = np.zeros(len(poses))
-        if contacts.observed:
-            agreement = rank_step.agreement_cost(est.mesh, seen_all, T, contacts, r)
-            scores = scores + r.agreement_weight * agreement
-        return _Scored(poses, scores, distance, agreement, depths.max(axis=1))
+        scored = rank_step.refine_and_score(est.penetration_model, est.surface, est.mesh, poses, T, contacts,
+                                            est.settings.rank, est.settings.sensors, self.settings.refine_iterations)
+        return _Scored(scored.poses, scored.scores, scored.distance, scored.agreement, scored.depths.max(axis=1))
 
     def _redetect(self, T: np.ndarray, images, backgrounds, reason: str, start: float, keep: bool = False,
                   read: tuple[np.ndarray, Contacts] | None = None) -> TrackedFrame:
