@@ -24,7 +24,9 @@ images and no-contact images) through
 poses as corrected so far, the confident estimates' best poses (``--self-confidence``, not ambiguous) taken for
 known and the offsets refitted, ``--rounds`` times. ``--sequences FILE``: each sequence of a ``make_sequences``
 file calibrated for its own bias from the CAL grasps, then tracked through the poses as reported, corrected and
-true (median and mean error over frames, the longest run over 2 cm).
+true (median and mean error over frames, the longest run over 2 cm); with ``--surface-penetration`` the tracker
+(its updates and re-detections) scores penetration with the object's surface samples instead of its convex pieces
+(``scripts/surface_penetration.py``; docs/collision.md).
 
 ``--write-grasps DIR`` only writes the first hand's calibration grasps as scene folders (with object_pose.txt),
 as ``tactile6d calibrate-sensors`` reads them.
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -175,6 +178,15 @@ def track_sequences(path: str, cal, n_grasps: int, args, estimators: Estimators,
     from tactile6d.estimation.tracker import Tracker, TrackSettings
     from tactile6d.evaluation.tracking_accuracy import longest_over, track_frames
 
+    if args.surface_penetration:
+        from surface_penetration import surface_penetration  # scripts/, this script's folder
+
+        def penetration(estimator):
+            return surface_penetration({id(estimator.penetration_model): estimator.surface})
+    else:
+        def penetration(estimator):
+            return nullcontext()
+
     seqs = read_artifact(path, "sequences")
     fps = float(np.asarray(seqs["fps"]).reshape(-1)[0])
     pooled = {k: [] for k in ("reported", "corrected", "true")}
@@ -187,7 +199,9 @@ def track_sequences(path: str, cal, n_grasps: int, args, estimators: Estimators,
         reported, images = np.asarray(seqs["T_world_sensors"][q]), np.asarray(seqs["images"][q])
         for key, T in (("reported", reported), ("corrected", apply_sensor_offsets(reported, offsets)),
                        ("true", np.asarray(seqs["T_world_sensors_true"][q]))):
-            with Tracker(estimators.get(obj, "default"), replace(TrackSettings.from_cfg(cfg.track), threads=1)) as tracker:
+            estimator = estimators.get(obj, "default")
+            settings = replace(TrackSettings.from_cfg(cfg.track), threads=1)
+            with penetration(estimator), Tracker(estimator, settings) as tracker:
                 poses = np.stack([a.pose for a in track_frames(tracker.update, T, images)])
             error = 100 * np.linalg.norm(poses[:, :3, 3] - truth[:, :3, 3], axis=1)
             pooled[key].append(error)
@@ -205,6 +219,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--calibration", required=True, help="scenes file whose first --grasps scenes calibrate")
     parser.add_argument("--test", default=None, help="scenes file estimated after the calibration")
     parser.add_argument("--sequences", default=None, help="sequences file (make_sequences) tracked after it")
+    parser.add_argument("--surface-penetration", action="store_true",
+                        help="with --sequences: the tracker scores penetration with the surface, not the pieces")
     parser.add_argument("--grasps", type=int, default=10)
     parser.add_argument("--hands", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
