@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -178,14 +177,7 @@ def track_sequences(path: str, cal, n_grasps: int, args, estimators: Estimators,
     from tactile6d.estimation.tracker import Tracker, TrackSettings
     from tactile6d.evaluation.tracking_accuracy import longest_over, track_frames
 
-    if args.surface_penetration:
-        from surface_penetration import surface_penetration  # scripts/, this script's folder
-
-        def penetration(estimator):
-            return surface_penetration({id(estimator.penetration_model): estimator.surface})
-    else:
-        def penetration(estimator):
-            return nullcontext()
+    from surface_penetration import penetration_of  # scripts/, this script's folder
 
     seqs = read_artifact(path, "sequences")
     fps = float(np.asarray(seqs["fps"]).reshape(-1)[0])
@@ -201,7 +193,7 @@ def track_sequences(path: str, cal, n_grasps: int, args, estimators: Estimators,
                        ("true", np.asarray(seqs["T_world_sensors_true"][q]))):
             estimator = estimators.get(obj, "default")
             settings = replace(TrackSettings.from_cfg(cfg.track), threads=1)
-            with penetration(estimator), Tracker(estimator, settings) as tracker:
+            with penetration_of(estimator, args.surface_penetration), Tracker(estimator, settings) as tracker:
                 poses = np.stack([a.pose for a in track_frames(tracker.update, T, images)])
             error = 100 * np.linalg.norm(poses[:, :3, 3] - truth[:, :3, 3], axis=1)
             pooled[key].append(error)

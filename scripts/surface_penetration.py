@@ -65,6 +65,14 @@ def surface_to_box_depths(surface, T_world_object: np.ndarray, T_world_sensors: 
     return depths
 
 
+def penetration_of(estimator: Estimator, surface: bool):
+    """A context in which the estimator's ranking and tracker measure penetration with its surface samples
+    (``surface``) or, as they do, with its convex pieces."""
+    if not surface:
+        return nullcontext()
+    return surface_penetration({id(estimator.penetration_model): estimator.surface})
+
+
 @contextmanager
 def surface_penetration(surfaces: dict[int, object]):
     """For the duration, the ranking's re-scoring measures penetration with ``surface_to_box_depths``
@@ -98,9 +106,7 @@ def track_sequences(artifacts: str, cfg, true_sensors: bool) -> None:
         reference = scoring.load_object_reference(artifacts, obj)
         truth, line = np.asarray(seq["T_world_object"][q]), f"{seq['names'][q]}:"
         for mode in pooled:
-            surfaces = {id(estimator.penetration_model): estimator.surface}
-            swapped = surface_penetration(surfaces) if mode == "surface" else nullcontext()
-            with swapped, Tracker(estimator, settings) as tracker:
+            with penetration_of(estimator, mode == "surface"), Tracker(estimator, settings) as tracker:
                 answers = accuracy.track_frames(tracker.update, np.asarray(seq[poses][q]), np.asarray(seq["images"][q]))
             error = accuracy.pose_errors(reference.points, np.stack([a.pose for a in answers]), truth,
                                          reference.tree)["position"]

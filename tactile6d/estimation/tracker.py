@@ -14,8 +14,9 @@ rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose 
   last pose (the reported one's also moved on by its last motion: constant velocity) is refined against
   them and scored by the single-shot ranking's own re-scoring (``rank.refine_and_score``: each sensor's
   small pose error estimated beside the object's pose, ``sensors.pose_sigma_mm``/``_deg``; surface fit +
-  penetration beyond the sensor poses' allowance + the corrections' cost + render-and-compare). Only the sensors whose image shows contact are fitted; every
-  sensor's image is compared, so a pose that presses a sensor whose image shows none pays for it.
+  penetration beyond the sensor poses' allowance + the corrections' cost + render-and-compare). Only the
+  sensors whose image shows contact are fitted; every sensor's image is compared, so a pose that presses a
+  sensor whose image shows none pays for it.
 - **fit check**: a hypothesis whose refined pose does not fit the contacts (mean point-to-plane residual
   over ``max_residual``), disagrees with the images (render-and-compare cost over ``max_agreement``) or
   penetrates a sensor deeper than the limit (the larger of the ranking's allowance and the last
@@ -173,17 +174,6 @@ class TrackedFrame:
 def _number(value: float) -> float | None:
     """A float for JSON: None for NaN (not a JSON number)."""
     return None if np.isnan(value) else float(value)
-
-
-@dataclass(frozen=True)
-class _Scored:
-    """Refined candidate poses and their score terms (P candidates)."""
-
-    poses: np.ndarray  # (P, 4, 4)
-    scores: np.ndarray  # (P,)
-    residual: np.ndarray  # (P,) m
-    agreement: np.ndarray  # (P,)
-    penetration: np.ndarray  # (P,) m
 
 
 class Tracker:
@@ -411,19 +401,23 @@ class Tracker:
             if k == leader and s.predict and len(h.poses) == 2:  # constant velocity: the last motion again
                 candidates.append(h.poses[-1] @ invert_pose(h.poses[-2]) @ h.poses[-1])
                 owners.append(k)
-        scored = self._score(np.stack(candidates), T, contacts)
+        # Refined and scored as the single-shot ranking re-scores its candidates, with refine_iterations steps.
+        est = self.estimator
+        scored = rank_step.refine_and_score(est.penetration_model, est.surface, est.mesh, np.stack(candidates), T,
+                                            contacts, est.settings.rank, est.settings.sensors, s.refine_iterations)
+        residual, penetration = scored.distance, scored.depths.max(axis=1)
         owners = np.array(owners)
         kept, contacts_fit = [], False
         for k, h in enumerate(self._hypotheses):
             mine = np.flatnonzero(owners == k)
             best = int(mine[np.argmin(scored.scores[mine])])
-            contacts_fit = contacts_fit or scored.residual[best] <= s.max_residual
-            if not (scored.residual[best] <= s.max_residual and scored.agreement[best] <= s.max_agreement
-                    and scored.penetration[best] <= self._penetration_limit):
+            contacts_fit = contacts_fit or residual[best] <= s.max_residual
+            if not (residual[best] <= s.max_residual and scored.agreement[best] <= s.max_agreement
+                    and penetration[best] <= self._penetration_limit):
                 continue  # this frame rules it out
             h.poses = [h.poses[-1], scored.poses[best]]
             h.evidence += (scored.scores[best] - h.evidence) / s.evidence_frames
-            h.terms = (scored.residual[best], scored.agreement[best], scored.penetration[best])
+            h.terms = (residual[best], scored.agreement[best], penetration[best])
             kept.append(h)
         if not kept and lifted and contacts_fit:
             # The touching sensors' contacts still fit: the images' agreement or the penetration failed, as a
@@ -452,15 +446,6 @@ class Tracker:
         evidence = np.array([self._hypotheses[k].evidence for k in order])
         distances = confidence.distances_from_best(self.estimator.spread_points, poses)
         return len(confidence.distinct_poses(evidence, distances, model.ambiguity_ratio)) > 1
-
-    def _score(self, poses: np.ndarray, T: np.ndarray, contacts: Contacts) -> _Scored:
-        """The candidate poses refined against the touching sensors' contacts and scored as ``rank.rank``
-        re-scores its candidates (``rank.refine_and_score``: surface fit, penetration beyond the allowance, the
-        sensor corrections' cost, render-and-compare over every sensor), with ``refine_iterations`` steps."""
-        est = self.estimator
-        scored = rank_step.refine_and_score(est.penetration_model, est.surface, est.mesh, poses, T, contacts,
-                                            est.settings.rank, est.settings.sensors, self.settings.refine_iterations)
-        return _Scored(scored.poses, scored.scores, scored.distance, scored.agreement, scored.depths.max(axis=1))
 
     def _redetect(self, T: np.ndarray, images, backgrounds, reason: str, start: float, keep: bool = False,
                   read: tuple[np.ndarray, Contacts] | None = None) -> TrackedFrame:
