@@ -39,9 +39,12 @@ test: install
 # The target times itself, install included: make expands REPRODUCE_STARTED (`:=`) as it reads this file,
 # before it builds the install prerequisite; record_reproduce_time.py writes artifacts/times/make_reproduce.json
 # for update_readme.py. repro_progress.py is `dvc repro` numbering the stages as DVC comes to them.
+# verify_lock.py --write-digests records the outputs' timing-free digests beside dvc.lock, so that a run on
+# another machine can be compared with this one without its files (docs/reproducibility.md, Across machines).
 reproduce: REPRODUCE_STARTED := $(shell date +%s)
 reproduce: install
 	$(BIN)/python scripts/repro_progress.py
+	$(BIN)/python scripts/verify_lock.py --write-digests reports/output_digests.json
 	$(BIN)/python scripts/record_reproduce_time.py $(REPRODUCE_STARTED)
 	$(BIN)/python scripts/update_readme.py
 

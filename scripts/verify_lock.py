@@ -35,6 +35,15 @@ checkout of the project that ran the pipeline, its files or its DVC cache holdin
 the same way, and prints one line per out that differs and a count of outs by verdict. Stage patterns then
 narrow the comparison (default: every stage of this workspace's dvc.yaml).
 
+``--write-digests FILE`` re-makes nothing either: it writes, for every out dvc.lock records, its md5 and a digest
+of its content less its timings (``content_digest``), and ``--against-digests FILE`` compares this workspace's
+outs with such a file: the same md5, else the same digest ("identical except timings"), else "differs". The
+run that writes dvc.lock writes ``reports/output_digests.json`` so (``make reproduce``), and it is committed with
+dvc.lock, so that a run on another machine is compared in full without the first run's files:
+
+    python scripts/verify_lock.py --write-digests reports/output_digests.json    # after dvc.lock is written
+    python scripts/verify_lock.py --against-digests ../main/reports/output_digests.json   # another run
+
 Exit status: 0 when every out of every stage is identical, 1 when an out differs, 2 when a stage could not
 be verified (unknown stage, changed data dep or param, missing dep, the command failed). The last lines
 printed are a summary to paste into the commit message that records the stages. Nothing in the workspace
@@ -133,14 +142,15 @@ def file_md5(path: Path) -> str:
         return hashlib.file_digest(f, "md5").hexdigest()
 
 
+def _files_below(path: Path) -> list[str]:
+    """Every file below ``path`` (relpath with /), links followed as DVC follows them, sorted."""
+    return sorted((Path(folder) / name).relative_to(path).as_posix()
+                  for folder, _, files in os.walk(path, followlinks=True) for name in files)
+
+
 def dir_listing(path: Path) -> dict[str, str]:
     """relpath (with /) -> md5 of every file below ``path``, links followed, as DVC lists a directory out."""
-    listing = {}
-    for folder, _, files in os.walk(path, followlinks=True):
-        for name in files:
-            full = Path(folder) / name
-            listing[full.relative_to(path).as_posix()] = file_md5(full)
-    return listing
+    return {rel: file_md5(path / rel) for rel in _files_below(path)}
 
 
 def listing_md5(listing: dict[str, str]) -> str:
@@ -374,10 +384,9 @@ def diff_json_values(old, new, prefix: str = "") -> list[tuple[str, str]]:
     return [] if same else [(prefix or "(top level)", _number_diff(old, new))]
 
 
-def diff_torch(old: Path, new: Path) -> list[tuple[str, str]]:
-    """Named differences of two PyTorch checkpoints (a dict of tensors, numbers, strings...): each tensor
-    compared bit for bit, the rest as JSON values. The file's bytes differ between two saves of the same
-    weights whenever anything else in it does (the training's seconds in the autoencoder's history)."""
+def torch_as_json(path: Path):
+    """A PyTorch checkpoint (a dict of tensors, numbers, strings...) as a JSON value: each tensor replaced by
+    the sha256 of its bytes, its shape and dtype."""
     import torch
 
     def plain(value):
@@ -390,8 +399,14 @@ def diff_torch(old: Path, new: Path) -> list[tuple[str, str]]:
             return [plain(v) for v in value]
         return value
 
-    return diff_json_values(plain(torch.load(old, map_location="cpu", weights_only=False)),
-                            plain(torch.load(new, map_location="cpu", weights_only=False)))
+    return plain(torch.load(path, map_location="cpu", weights_only=False))
+
+
+def diff_torch(old: Path, new: Path) -> list[tuple[str, str]]:
+    """Named differences of two PyTorch checkpoints: each tensor compared bit for bit, the rest as JSON
+    values. The file's bytes differ between two saves of the same weights whenever anything else in it does
+    (the training's seconds in the autoencoder's history)."""
+    return diff_json_values(torch_as_json(old), torch_as_json(new))
 
 
 def _strip_index(path: str) -> str:
@@ -729,16 +744,179 @@ def pipeline_stages(root: Path) -> list[str]:
     return proc.stdout.split()
 
 
+# --- timing-free digests: one run's outputs, to compare another machine's run with ------------------------
+#
+# ``--against`` needs the other run's files. A digest of each out that leaves its timings out (the names
+# ``--ignore-timings`` leaves out) travels without them: the run that writes dvc.lock also writes
+# reports/output_digests.json, which is committed with it, and a run anywhere else compares its outs with it.
+
+DIGESTS_FILE = "reports/output_digests.json"
+
+
+def _json_leaves(value, prefix: str = "") -> list[tuple[str, object]]:
+    """(key path, leaf) of a JSON value, named as ``diff_json_values`` names them (``a.b[2].c``)."""
+    if isinstance(value, dict) and value:
+        return [leaf for key in sorted(value, key=str)
+                for leaf in _json_leaves(value[key], f"{prefix}.{key}" if prefix else str(key))]
+    if isinstance(value, list) and value:
+        return [leaf for i, item in enumerate(value) for leaf in _json_leaves(item, f"{prefix}[{i}]")]
+    return [(prefix or "(top level)", value)]
+
+
+def _hdf5_items(path: Path) -> list[tuple[str, object]]:
+    """(name, value) of an HDF5 file's datasets and attributes, named as ``diff_hdf5`` names them; an attribute
+    holding JSON text (tactile6d stamps its config so) by key."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        datasets, attrs = _hdf5_objects(f)
+    items: list[tuple[str, object]] = [(f"dataset {name}", value) for name, value in datasets.items()]
+    for name, value in attrs.items():
+        text = value.decode() if isinstance(value, bytes) else value
+        try:
+            parsed = json.loads(text) if isinstance(text, str) else None
+        except ValueError:
+            parsed = None
+        if parsed is None:
+            items.append((f"attribute {name}", text))
+        else:
+            items += [(f"attribute {name}" if key == "(top level)" else f"attribute {name}:{key}", leaf)
+                      for key, leaf in _json_leaves(parsed)]
+    return items
+
+
+def _value_sha256(value) -> str:
+    """sha256 of a dataset's, attribute's or key's value: an array by its dtype, shape and bytes (so NaN equals
+    NaN and -0.0 differs from 0.0, as the bits do), anything else by its JSON text."""
+    import numpy as np
+
+    if isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind not in "OUS":
+        array = np.ascontiguousarray(value)
+        payload = f"{array.dtype.str}{array.shape}".encode() + array.tobytes()
+    else:
+        plain = value.tolist() if isinstance(value, (np.ndarray, np.generic)) else value
+        payload = json.dumps(plain, sort_keys=True, default=str).encode()
+    return hashlib.sha256(payload).hexdigest()
+
+
+def content_digest(path: Path) -> str:
+    """sha256 of a file's or directory's content less its timings: HDF5 datasets and attributes, JSON keys and
+    a checkpoint's entries by name, those named like timings (``is_timing``) left out; other kinds (PNG,
+    NPZ, text) by their bytes; a directory by its files' digests. Two versions with the same digest are what
+    ``--ignore-timings`` calls identical (but for text, which it compares line by line)."""
+    if path.is_dir():
+        lines = [f"{rel}\t{content_digest(path / rel)}" for rel in _files_below(path)]
+        return hashlib.sha256("\n".join(lines).encode()).hexdigest()
+    suffix = path.suffix.lower()
+    try:
+        if suffix in (".h5", ".hdf5"):
+            items = _hdf5_items(path)
+        elif suffix == ".json":
+            items = _json_leaves(json.loads(path.read_text()))
+        elif suffix == ".pt":
+            items = _json_leaves(torch_as_json(path))
+        else:
+            items = None
+    except (OSError, ValueError, UnicodeDecodeError, RuntimeError):
+        items = None  # unreadable as its kind: its bytes say whether it is the same
+    if items is None:
+        with open(path, "rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
+    kept = sorted(f"{name}\t{_value_sha256(value)}" for name, value in items if not is_timing(_timing_key(name)))
+    return hashlib.sha256("\n".join(kept).encode()).hexdigest()
+
+
+def _cpu_name() -> str:
+    """This machine's CPU as Linux names it, with its family and model (the digests say where they were made)."""
+    cpuinfo = Path("/proc/cpuinfo")
+    fields: dict[str, str] = {}
+    for line in cpuinfo.read_text().splitlines() if cpuinfo.is_file() else []:
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    if "model name" not in fields:
+        return "unknown CPU"
+    return f"{fields['model name']} (family {fields.get('cpu family', '?')} model {fields.get('model', '?')})"
+
+
+def write_digests(root: Path, patterns: list[str], target: Path) -> int:
+    """``--write-digests``: the md5 and ``content_digest`` of every out of ``root``'s dvc.lock (its stages
+    matching ``patterns``, all when none) into the JSON file ``target``; nothing is written when an out in the
+    workspace is not the version dvc.lock records. Returns the exit status."""
+    stages = lock_stages(root)
+    names, unknown = select_stages(stages, patterns or list(stages))
+    for pattern in unknown:
+        print(f"{pattern}: no stage of dvc.lock matches it")
+    outs, problems = {}, []
+    for name in names:
+        for out in stages[name].get("outs", []):
+            rel, path = norm(out["path"]), root / norm(out["path"])
+            if path_md5(path) != out.get("md5"):
+                problems.append(f"{name}: {rel}: not the version dvc.lock records (`dvc checkout` or `dvc repro` first)")
+                continue
+            outs[rel] = {"stage": name, "md5": out["md5"], "digest": content_digest(path)}
+    for line in problems:
+        print(line)
+    if problems or unknown:
+        print(f"nothing written to {target}")
+        return UNVERIFIED
+    data = {"about": "timing-free digests of the outputs dvc.lock records (scripts/verify_lock.py --against-digests)",
+            "commit": git_head(root), "cpu": _cpu_name(), "outs": outs}
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    print(f"{target}: {len(outs)} outs of {len(names)} stages ({data['commit']}, {data['cpu']})")
+    return OK
+
+
+def compare_digests(root: Path, digests: Path, patterns: list[str]) -> int:
+    """``--against-digests``: every out of ``root``'s lock (its stages matching ``patterns``, those of its
+    dvc.yaml when none) against the digests another run wrote: the same md5, else the same digest (identical
+    except timings), else it differs. Prints the outs that do not match and a count by verdict."""
+    reference = json.loads(Path(digests).read_text())
+    recorded = reference["outs"]
+    stages = lock_stages(root)
+    names, unknown = select_stages(stages, patterns or pipeline_stages(root))
+    counts: dict[str, int] = {}
+    for name in names:
+        for out in stages[name].get("outs", []):
+            rel = norm(out["path"])
+            path, ref = root / rel, recorded.get(rel)
+            current = path_md5(path)
+            if ref is None:
+                verdict = "not in the digests"
+            elif current is None:
+                verdict = "missing"
+            elif current == ref["md5"]:
+                verdict = "same md5"
+            elif content_digest(path) == ref["digest"]:
+                verdict = "identical except timings"
+            else:
+                verdict = "differs"
+            counts[verdict] = counts.get(verdict, 0) + 1
+            if verdict not in ("same md5", "identical except timings"):
+                print(f"{name}: {rel}: {verdict}")
+    for pattern in unknown:
+        print(f"{pattern}: no stage of this workspace's dvc.lock matches it")
+    print(f"\n{git_head(root)} against {digests} ({reference.get('commit')}, {reference.get('cpu')}): "
+          f"{len(names)} stages, {sum(counts.values())} outs: " + ", ".join(f"{counts[v]} {v}" for v in sorted(counts)))
+    if unknown:
+        return UNVERIFIED
+    return OK if all(v in ("same md5", "identical except timings") for v in counts) else DIFFERS
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("stages", nargs="*", help="stage names as dvc.lock spells them; shell patterns allowed "
-                                                  "(required unless --against)")
+                                                  "(required unless --against, --write-digests or --against-digests)")
     parser.add_argument("--ignore-timings", action="store_true",
                         help="do not compare datasets/attributes/keys named like timings (seconds_*, time_s*, ...)")
     parser.add_argument("--repo", default=".", help="root of the DVC repository (default: the current folder)")
     parser.add_argument("--against", metavar="OLD", default=None,
                         help="re-make nothing: compare this workspace's outs with those OLD's dvc.lock records")
+    parser.add_argument("--write-digests", metavar="FILE", default=None,
+                        help=f"re-make nothing: write the timing-free digests of the outs dvc.lock records (as {DIGESTS_FILE})")
+    parser.add_argument("--against-digests", metavar="FILE", default=None,
+                        help="re-make nothing: compare this workspace's outs with the digests another run wrote")
     parser.add_argument("--tmp-dir", default=None, help="where to make the shadow workspaces (default: the system's)")
     parser.add_argument("--keep", action="store_true", help="keep the shadow workspaces and logs, and say where")
     args = parser.parse_args(argv)
@@ -746,8 +924,12 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(args.repo).resolve()
     if args.against is not None:
         return compare_runs(root, Path(args.against).resolve(), args.stages, args.ignore_timings)
+    if args.write_digests is not None:
+        return write_digests(root, args.stages, Path(args.write_digests).resolve())
+    if args.against_digests is not None:
+        return compare_digests(root, Path(args.against_digests).resolve(), args.stages)
     if not args.stages:
-        parser.error("name the stages to re-make (or give --against OLD)")
+        parser.error("name the stages to re-make (or give --against OLD, --write-digests or --against-digests FILE)")
     stages = lock_stages(root)
     names, unknown = select_stages(stages, args.stages)
     for pattern in unknown:

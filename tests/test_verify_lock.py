@@ -5,6 +5,7 @@ out), then, if the data are there, on the project's own sample_surface@036_wood_
 """
 
 import hashlib
+import json
 import os
 import shutil
 import subprocess
@@ -282,3 +283,95 @@ def test_against_another_run_compares_every_out(repo, built_repo):
     assert status == 1, out
     assert "summarize: out/summary.h5: differs" in out and "dataset total: 1 of 1 elements differ" in out
     assert "1 stages, 3 outs:" in out
+
+
+def test_content_digest_leaves_out_timings_and_nothing_else(tmp_path):
+    """Two HDF5 files, two JSON files and two checkpoints that differ only in what is named like a timing have
+    one digest; one bit of data more, or a config key changed, gives another."""
+    import h5py
+    import numpy as np
+    import torch
+
+    def h5(name, seconds, values, config):
+        path = tmp_path / name
+        with h5py.File(path, "w") as f:
+            f.attrs["config"] = json.dumps(config)
+            f.attrs["seconds_per_scene"] = seconds
+            f.create_dataset("values", data=values)
+            f.create_dataset("timing/seconds_total", data=seconds)
+            f.create_dataset("names", data=np.array(["a", "b"], dtype=h5py.string_dtype()))
+        return path
+
+    values = np.array([0.1, 0.2, np.nan])
+    base = h5("base.h5", 1.5, values, {"n": 3, "wall_s": 2.0})
+    digest = verify_lock.content_digest(base)
+    assert verify_lock.content_digest(h5("later.h5", 9.25, values.copy(), {"n": 3, "wall_s": 7.0})) == digest
+    one_bit = values.copy()
+    one_bit[0] = np.nextafter(one_bit[0], 1.0)
+    assert verify_lock.content_digest(h5("bit.h5", 1.5, one_bit, {"n": 3, "wall_s": 2.0})) != digest
+    assert verify_lock.content_digest(h5("config.h5", 1.5, values, {"n": 4, "wall_s": 2.0})) != digest
+
+    def js(name, value):
+        (tmp_path / name).write_text(json.dumps(value))
+        return tmp_path / name
+
+    first = verify_lock.content_digest(js("a.json", {"mean": 0.5, "per_scene": [{"ms": 3, "ok": True}]}))
+    assert verify_lock.content_digest(js("b.json", {"per_scene": [{"ok": True, "ms": 9}], "mean": 0.5})) == first
+    assert verify_lock.content_digest(js("c.json", {"mean": 0.5, "per_scene": [{"ms": 3, "ok": False}]})) != first
+
+    weights = {"w": torch.arange(6.0)}
+    torch.save({"state_dict": weights, "history": {"seconds": [3.1]}}, tmp_path / "old.pt")
+    torch.save({"state_dict": weights, "history": {"seconds": [3.4]}}, tmp_path / "new.pt")
+    torch.save({"state_dict": {"w": weights["w"] + 1e-6}, "history": {"seconds": [3.1]}}, tmp_path / "other.pt")
+    model = verify_lock.content_digest(tmp_path / "old.pt")
+    assert verify_lock.content_digest(tmp_path / "new.pt") == model
+    assert verify_lock.content_digest(tmp_path / "other.pt") != model
+
+    (tmp_path / "folder").mkdir()
+    shutil.copy(base, tmp_path / "folder" / "x.h5")
+    folder = verify_lock.content_digest(tmp_path / "folder")
+    shutil.copy(tmp_path / "later.h5", tmp_path / "folder" / "x.h5")
+    assert verify_lock.content_digest(tmp_path / "folder") == folder
+    (tmp_path / "folder" / "y.txt").write_text("more")
+    assert verify_lock.content_digest(tmp_path / "folder") != folder
+
+
+@pytest.mark.slow
+def test_digests_compare_another_run_without_its_files(repo, built_repo, tmp_path):
+    """--write-digests on one run, --against-digests on a re-run with other timings: every out matches; a
+    changed result is named; nothing is written when the workspace is not what dvc.lock records."""
+    digests = tmp_path / "digests.json"
+    status, out = verify(built_repo, "--write-digests", str(digests))
+    assert status == 0, out
+    assert set(json.loads(digests.read_text())["outs"]) == {"out/data.json", "out/summary.h5", "out/parts",
+                                                             "out/report.md"}
+    env = dict(os.environ, FAKE_SECONDS="9.25")
+    run(["dvc", "repro", "-f", "-q"], repo, env=env)
+    status, out = verify(repo, "--against-digests", str(digests))
+    assert status == 0, out
+    assert "2 stages, 4 outs: 3 identical except timings, 1 same md5" in out
+
+    code = (repo / "summarize.py").read_text()
+    (repo / "summarize.py").write_text(code.replace("total = values.sum()", "total = values.sum() + 1"))
+    run(["dvc", "repro", "-q"], repo, env=env)
+    status, out = verify(repo, "--against-digests", str(digests))
+    assert status == 1, out
+    assert "summarize: out/summary.h5: differs" in out and "summarize: out/report.md: differs" in out
+
+    (repo / "out" / "data.json").write_text("{}")  # no longer what dvc.lock records
+    stale = tmp_path / "stale.json"
+    status, out = verify(repo, "--write-digests", str(stale))
+    assert status == 2 and not stale.exists(), out
+    assert "make: out/data.json: not the version dvc.lock records" in out
+
+
+def test_committed_digests_are_those_of_dvc_lock():
+    """reports/output_digests.json is written with dvc.lock (make reproduce) and must record the same outs at
+    the same md5: after a partial `dvc repro`, refresh it with the command of this message."""
+    digests = json.loads((REPO / verify_lock.DIGESTS_FILE).read_text())["outs"]
+    lock = verify_lock.lock_stages(REPO)
+    recorded = {verify_lock.norm(out["path"]): out["md5"] for entry in lock.values() for out in entry.get("outs", [])}
+    stale = sorted(rel for rel in set(recorded) | set(digests) if digests.get(rel, {}).get("md5") != recorded.get(rel))
+    assert not stale, (f"{len(stale)} outs of dvc.lock are not recorded as they are in {verify_lock.DIGESTS_FILE} "
+                       f"(first: {stale[:3]}); in the checkout whose outputs dvc.lock records, run "
+                       f"`python scripts/verify_lock.py --write-digests {verify_lock.DIGESTS_FILE}`")
