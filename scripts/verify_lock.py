@@ -870,7 +870,8 @@ def write_digests(root: Path, patterns: list[str], target: Path) -> int:
 def compare_digests(root: Path, digests: Path, patterns: list[str]) -> int:
     """``--against-digests``: every out of ``root``'s lock (its stages matching ``patterns``, those of its
     dvc.yaml when none) against the digests another run wrote: the same md5, else the same digest (identical
-    except timings), else it differs. Prints the outs that do not match and a count by verdict."""
+    except timings; a stage-time record of artifacts/times/ always is, as with ``--ignore-timings``), else it
+    differs. Prints the outs that do not match and a count by verdict."""
     reference = json.loads(Path(digests).read_text())
     recorded = reference["outs"]
     stages = lock_stages(root)
@@ -887,8 +888,8 @@ def compare_digests(root: Path, digests: Path, patterns: list[str]) -> int:
                 verdict = "missing"
             elif current == ref["md5"]:
                 verdict = "same md5"
-            elif content_digest(path) == ref["digest"]:
-                verdict = "identical except timings"
+            elif under(rel, (TIMES_DIR,)) or content_digest(path) == ref["digest"]:
+                verdict = "identical except timings"  # a stage-time record holds its machine and start too
             else:
                 verdict = "differs"
             counts[verdict] = counts.get(verdict, 0) + 1

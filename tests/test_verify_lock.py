@@ -375,3 +375,27 @@ def test_committed_digests_are_those_of_dvc_lock():
     assert not stale, (f"{len(stale)} outs of dvc.lock are not recorded as they are in {verify_lock.DIGESTS_FILE} "
                        f"(first: {stale[:3]}); in the checkout whose outputs dvc.lock records, run "
                        f"`python scripts/verify_lock.py --write-digests {verify_lock.DIGESTS_FILE}`")
+
+
+def test_digests_take_a_stage_time_record_for_a_timing(tmp_path, capsys):
+    """A stage-time record (artifacts/times/) names the machine and the start beside its seconds: another
+    machine's never matches it, and it counts as identical except timings, as with --ignore-timings."""
+    import yaml
+
+    (tmp_path / "artifacts" / "times").mkdir(parents=True)
+    record, data = tmp_path / "artifacts" / "times" / "s.json", tmp_path / "out.json"
+    record.write_text(json.dumps({"cpu": "Intel(R) Xeon(R) Processor", "started": "2026-11-29", "seconds": 3.0}))
+    data.write_text(json.dumps({"total": 21.0, "wall_s": 1.0}))
+    outs = [{"path": "artifacts/times/s.json", "md5": verify_lock.file_md5(record)},
+            {"path": "out.json", "md5": verify_lock.file_md5(data)}]
+    (tmp_path / "dvc.lock").write_text(yaml.safe_dump({"schema": "2.0", "stages": {"s": {"cmd": "x", "outs": outs}}}))
+    digests = tmp_path / "digests.json"
+    assert verify_lock.write_digests(tmp_path, [], digests) == verify_lock.OK
+
+    record.write_text(json.dumps({"cpu": "AMD EPYC", "started": "2026-12-01", "seconds": 2.0}))
+    data.write_text(json.dumps({"total": 21.0, "wall_s": 0.7}))
+    assert verify_lock.compare_digests(tmp_path, digests, ["s"]) == verify_lock.OK
+    assert "2 outs: 2 identical except timings" in capsys.readouterr().out
+    data.write_text(json.dumps({"total": 22.0, "wall_s": 0.7}))
+    assert verify_lock.compare_digests(tmp_path, digests, ["s"]) == verify_lock.DIFFERS
+    assert "s: out.json: differs" in capsys.readouterr().out
