@@ -20,7 +20,10 @@ the object, and the pose fitted from those object points to the contact points a
 poses given (``oracle_fit``, the fast solver's weighted Kabsch with equal weights), then refined and scored
 like the floor. ``--starts N``: N starts around each best pose (Gaussian, ``--start-mm`` and ``--start-deg``
 per axis), refined and scored with it, the best kept: whether a wider local search would find a pose that
-scores better and lies nearer the truth. The oracle fit needs L >= 3 contacts.
+scores better and lies nearer the truth; with ``--average-tau MM`` also their score-weighted mean
+(``weighted_pose_mean``): whether the refined starts scatter around the truth (their mean nearer it than the
+best of them) or settle about a minimum of the score away from it (no nearer). The oracle fit needs L >= 3
+contacts.
 
 Per set it also counts the scenes whose refined true pose scores worse than the estimate's best pose: where
 that is most scenes, the score's own minimum, not the search, sets the error.
@@ -41,6 +44,7 @@ from tactile6d.core.config import compose_config  # noqa: E402
 from tactile6d.core.geometry import invert_pose, make_pose, rotvec_to_rotmat, transform_points  # noqa: E402
 from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
+from tactile6d.estimation import rank as rank_step  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.estimation.optimize import weighted_kabsch  # noqa: E402
 from tactile6d.evaluation.kinematic_bound import true_sensor_poses  # noqa: E402
@@ -74,6 +78,26 @@ def starts_around(T: np.ndarray, n: int, sigma_m: float, sigma_rad: float, rng: 
     return np.stack([T] + [T @ step for step in steps])
 
 
+def weighted_pose_mean(poses: np.ndarray, scores: np.ndarray, tau: float) -> np.ndarray:
+    """The mean of poses (P, 4, 4) weighted by exp(-(score - best score) / tau), scores (P,) and tau in the
+    same unit -> (4, 4): the weighted mean translation and the rotation nearest (Frobenius) the weighted mean of
+    the rotation matrices (the chordal mean). A tau far below the scores' gaps gives the best pose."""
+    w = np.exp(-(np.asarray(scores, dtype=np.float64) - np.min(scores)) / tau)
+    w /= w.sum()
+    U, _, Vt = np.linalg.svd(np.einsum("p,pij->ij", w, poses[:, :3, :3]))
+    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return make_pose(R, w @ poses[:, :3, 3])
+
+
+def refined_starts(est: Estimator, T_world_sensors: np.ndarray, starts: np.ndarray, contacts) -> rank_step.RefinedScores:
+    """Every start (P, 4, 4) refined and scored as the ranking re-scores its candidates (``rank.refine_and_score``),
+    none dropped as a duplicate (``Estimator.rank`` keeps the best distinct poses only)."""
+    settings = est.settings.rank
+    mesh = est.mesh if settings.uses_agreement and contacts.observed else None
+    return rank_step.refine_and_score(est.penetration_model, est.surface, mesh, starts, np.asarray(T_world_sensors),
+                                      contacts, settings, est.settings.sensors, int(settings.refine_iterations))
+
+
 def summary(name: str, errors: list[float]) -> str:
     return f"{name} {np.mean(errors):.2f} cm (median {np.median(errors):.2f})"
 
@@ -90,6 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--start-mm", type=float, default=2.0, help="their spread per axis of translation (mm)")
     parser.add_argument("--start-deg", type=float, default=2.0, help="their spread per axis of rotation (deg)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the starts")
+    parser.add_argument("--average-tau", type=float, default=None, metavar="MM",
+                        help="with --starts: also the refined starts' mean, weighted exp(-(score - best) / tau)")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
     args = parser.parse_args(argv)
     cfg = compose_config(args.overrides)
@@ -99,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         scenes = read_artifact(layout.scenes_file(args.artifacts, scene_set), "scenes")
         estimators: dict[str, Estimator] = {}
         best, floor, through_true, scored_worse, missed = [], [], [], 0, 0
-        fitted, fitted_refined, widened, truth_worse = [], [], [], 0
+        fitted, fitted_refined, widened, averaged, truth_worse = [], [], [], [], 0
         rng = np.random.default_rng(args.seed)
         for s in range(len(scenes["names"])):
             obj = str(scenes["objects"][s])
@@ -123,6 +149,11 @@ def main(argv: list[str] | None = None) -> int:
                 starts = starts_around(estimate.best, args.starts, args.start_mm / 1000, np.radians(args.start_deg), rng)
                 widened.append(position_cm(est.rank(T, starts, np.zeros(len(starts)), estimate.contacts).poses[0], truth))
                 line += f"  best of {args.starts + 1} starts {widened[-1]:6.2f} cm"
+                if args.average_tau is not None:
+                    refined_all = refined_starts(est, T, starts, estimate.contacts)
+                    mean = weighted_pose_mean(refined_all.poses, refined_all.scores, args.average_tau / 1000)
+                    averaged.append(position_cm(mean, truth))
+                    line += f", their weighted mean {averaged[-1]:6.2f} cm"
             T_true = true_sensor_poses(scenes, s) if args.true_sensors else None
             if T_true is not None:
                 through_true.append(position_cm(est.estimate(T_true, images, backgrounds).best, truth))
@@ -139,6 +170,8 @@ def main(argv: list[str] | None = None) -> int:
             report += [summary("oracle fit", fitted), summary("oracle fit refined", fitted_refined)]
         if widened:
             report.append(summary(f"best of {args.starts + 1} starts", widened))
+        if averaged:
+            report.append(summary(f"their mean weighted at tau {args.average_tau:g} mm", averaged))
         if through_true:
             report.append(summary("through the true sensor poses", through_true))
         print(f"{scene_set}: {len(best)} scenes; " + "; ".join(report) + f"; {scored_worse + missed} over "

@@ -49,3 +49,22 @@ def test_starts_begin_with_the_pose_itself_and_spread_as_asked():
     assert np.std(local[:, :3, 3]) == pytest.approx(0.002, rel=0.1)
     angles = np.degrees(np.arccos(np.clip((np.trace(local[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1)))
     assert np.median(angles) == pytest.approx(2.0 * 1.538, rel=0.15)  # median of a 3-D Gaussian's norm: 1.538 sigma
+
+
+def test_weighted_pose_mean_against_a_naive_one():
+    """Poses spread symmetrically about T with equal scores average to T; a tiny tau keeps the best; with two
+    poses of equal weight the translation is their midpoint and the rotation halfway (one axis)."""
+    T = make_pose(rotvec_to_rotmat(np.array([0.2, -0.1, 0.4])), [0.05, 0.01, 0.3])
+    steps = [make_pose(rotvec_to_rotmat(np.array(v) * 0.02), np.array(v) * 0.001)
+             for v in ([1, 0, 0], [0, 1, 0], [0, 0, 1])]
+    poses = np.stack([T @ step for step in steps] + [T @ np.linalg.inv(step) for step in steps])
+    mean = pose_floor.weighted_pose_mean(poses, np.zeros(6), tau=1.0)
+    assert np.allclose(mean[:3, 3], T[:3, 3], atol=1e-12)
+    assert np.allclose(mean[:3, :3], T[:3, :3], atol=1e-12)  # T times a symmetric positive matrix: its polar factor is T
+    scores = np.array([3.0, 1.0, 2.0, 5.0, 4.0, 6.0])
+    assert np.allclose(pose_floor.weighted_pose_mean(poses, scores, tau=1e-3), poses[1], atol=1e-12)
+
+    a, b = make_pose(np.eye(3), [0.0, 0.0, 0.0]), make_pose(rotvec_to_rotmat(np.array([0.0, 0.0, 0.6])), [0.02, 0.0, 0.0])
+    mid = pose_floor.weighted_pose_mean(np.stack([a, b]), np.array([0.5, 0.5]), tau=1.0)
+    assert np.allclose(mid[:3, 3], [0.01, 0.0, 0.0])
+    assert np.allclose(mid[:3, :3], rotvec_to_rotmat(np.array([0.0, 0.0, 0.3])), atol=1e-12)
