@@ -73,6 +73,7 @@ TIMING_NAME = re.compile(r"(^|_)(seconds|secs|ms|time_s|wall_s|elapsed)(_|$)|_s$
 MAX_DETAIL_LINES = 12  # per out: enough to see what differs without burying the summary
 
 OK, DIFFERS, UNVERIFIED = 0, 1, 2  # exit statuses, worst wins
+MATCHING = ("same md5", "identical except timings")  # the verdicts of a comparison of two runs that pass
 
 
 # --- reading dvc.lock and params files ----------------------------------------------------------------
@@ -732,7 +733,7 @@ def compare_runs(root: Path, old_root: Path, patterns: list[str], ignore_timings
         print(f"stages not in {old_root}'s dvc.lock (nothing to compare): {', '.join(only_here)}")
     if unknown:
         return UNVERIFIED
-    return OK if all(v in ("same md5", "identical except timings") for v in counts) else DIFFERS
+    return OK if all(v in MATCHING for v in counts) else DIFFERS
 
 
 def pipeline_stages(root: Path) -> list[str]:
@@ -893,7 +894,7 @@ def compare_digests(root: Path, digests: Path, patterns: list[str]) -> int:
             else:
                 verdict = "differs"
             counts[verdict] = counts.get(verdict, 0) + 1
-            if verdict not in ("same md5", "identical except timings"):
+            if verdict not in MATCHING:
                 print(f"{name}: {rel}: {verdict}")
     for pattern in unknown:
         print(f"{pattern}: no stage of this workspace's dvc.lock matches it")
@@ -901,7 +902,7 @@ def compare_digests(root: Path, digests: Path, patterns: list[str]) -> int:
           f"{len(names)} stages, {sum(counts.values())} outs: " + ", ".join(f"{counts[v]} {v}" for v in sorted(counts)))
     if unknown:
         return UNVERIFIED
-    return OK if all(v in ("same md5", "identical except timings") for v in counts) else DIFFERS
+    return OK if all(v in MATCHING for v in counts) else DIFFERS
 
 
 def main(argv: list[str] | None = None) -> int:
