@@ -48,6 +48,7 @@ from tactile6d.estimation import rank as rank_step  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.estimation.optimize import weighted_kabsch  # noqa: E402
 from tactile6d.evaluation.kinematic_bound import true_sensor_poses  # noqa: E402
+from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
 
 
@@ -117,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--average-tau", type=float, default=None, metavar="MM",
                         help="with --starts: also the refined starts' mean, weighted exp(-(score - best) / tau)")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
-    args = parser.parse_args(argv)
+    args = parse_with_overrides(parser, argv)
     cfg = compose_config(args.overrides)
     if not cfg.rank.refine:
         raise SystemExit("the floor is the true pose refined as the ranking refines: needs rank.refine")

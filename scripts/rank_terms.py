@@ -32,6 +32,7 @@ from tactile6d.core.config import compose_config  # noqa: E402
 from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
+from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
 
 TERMS = ("surface", "penetration", "correction", "agreement")
@@ -112,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--against-truth", action="store_true",
                         help="also re-score the winner and the true pose alone and compare their terms, every scene")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
-    args = parser.parse_args(argv)
+    args = parse_with_overrides(parser, argv)
     cfg = compose_config(args.overrides)
     if not (cfg.rank.refine or cfg.rank.agreement_weight > 0):
         raise SystemExit("ranking re-scores no candidate with these settings (rank.refine off, no agreement)")

@@ -33,6 +33,7 @@ from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact
 from tactile6d.estimation.identifier import Identifier
 from tactile6d.estimation.optimize import use_cpu_devices_for
+from tactile6d.runtime.script_args import parse_with_overrides
 
 FIELDS = ("tuples", "errors", "delta_d", "capped")
 
@@ -99,7 +100,7 @@ def main() -> int:
     c = sub.add_parser("compare")
     c.add_argument("before")
     c.add_argument("after")
-    args = parser.parse_args()
+    args = parse_with_overrides(parser)
     return dump(args) if args.command == "dump" else compare(args)
 
 

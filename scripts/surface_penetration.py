@@ -44,6 +44,7 @@ from tactile6d.estimation.optimize import use_cpu_devices_for  # noqa: E402
 from tactile6d.estimation.tracker import Tracker, TrackSettings  # noqa: E402
 from tactile6d.evaluation import scoring  # noqa: E402
 from tactile6d.evaluation import tracking_accuracy as accuracy  # noqa: E402
+from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
 
 _BOX_RADIUS = float(np.linalg.norm(BOX_HALF_EXTENTS))
@@ -129,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     which.add_argument("--sequences", action="store_true", help="the tracking sequences, tracked")
     parser.add_argument("--true-sensors", action="store_true", help="with --sequences: through the true sensor poses")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
-    args = parser.parse_args(argv)
+    args = parse_with_overrides(parser, argv)
     cfg = compose_config(args.overrides)
     if cfg.sensors.pose_sigma_mm == 0 and cfg.sensors.pose_sigma_deg == 0:
         raise SystemExit("with the sensor poses declared exact the ranking scores no corrected sensors: nothing to swap")

@@ -31,6 +31,7 @@ from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.perception.encode import load_background  # noqa: E402
 from tactile6d.perception.photometric import background_from_images, fit_light  # noqa: E402
+from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 
 TURNS = {"": lambda b: b, ", mirrored left-right": lambda b: b[:, ::-1], ", mirrored up-down": lambda b: b[::-1],
          ", turned half a turn": lambda b: b[::-1, ::-1]}
@@ -51,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
                         "(repeat for more)")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (render.background: the unit "
                         "the sets were rendered over)")
-    args = parser.parse_args(argv)
+    args = parse_with_overrides(parser, argv)
     cfg = compose_config(args.overrides)
     default = load_background(cfg)
     others = {path: load_background(compose_config([*args.overrides, f"render.background={path}"]))

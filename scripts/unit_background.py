@@ -30,6 +30,7 @@ from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.data.third_party import DataStore  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.perception.photometric import background_from_images  # noqa: E402
+from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.render import DigitRenderer, load_background_bgr  # noqa: E402
 
 
@@ -40,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--background", required=True, help="the other unit's no-contact image, data-relative "
                         "(the render.background the sets were made with)")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
-    args = parser.parse_args(argv)
+    args = parse_with_overrides(parser, argv)
     cfg = compose_config(args.overrides)  # the estimator's default no-contact image stays the config's
     # The unit's own no-contact image exactly as the renderer put it under the images (RGB, resized).
     unit = compose_config([*args.overrides, f"render.background={args.background}"])
