@@ -7,8 +7,9 @@ Every scene of the sets is estimated as stage rank does (images and each sensor'
 default settings); for each best pose over ``--wrong-cm`` off, ``tactile6d.evaluation.symmetry`` measures
 how much of the object's surface the estimate puts where the truth has it, as the estimator refines the
 truth through the sensor poses given (``scripts/pose_floor.py``'s floor: through poses off by millimetres the
-truth itself is never matched within 1 mm), over the whole surface and near the contacts, and names the case: a symmetry of the object (no touch anywhere tells them apart), alike
-where touched (these contacts do not), or other. Per set it prints how many of the scenes each kind holds and
+truth itself is never matched within 1 mm), over the whole surface and near the contacts, and names the
+case: a symmetry of the object (no touch anywhere tells them apart), alike where touched (these contacts do
+not), or other. Per set it prints how many of the scenes each kind holds and
 how much of the set's mean positional error they make (their errors summed over all the set's scenes), and
 the mean over the rest. ``--sequences K``: also every K-th frame of the tracking sequences
 (``artifacts/sequences/tracking.h5``), estimated from scratch through the sensor poses the hand reports.
