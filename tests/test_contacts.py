@@ -123,6 +123,26 @@ def test_selection_fit_and_refinement_leave_out_a_sensor_that_does_not_touch(wor
     assert ranked.penetrations.shape == (len(ranked.poses), 3) and (ranked.penetrations[:, 1] == 0).all()
 
 
+@pytest.mark.parametrize("free_weight", [0.0, 3.0])
+def test_score_refined_scores_poses_as_refine_and_score_does(world, free_weight):
+    """Poses refined by ``refine_and_score`` (exact sensors: no corrections to pass on) and scored again as they
+    stand by ``score_refined`` score the same, with the untouched gel's rows in the refinement or not."""
+    e = make_world_estimator(world, **EXACT_POSES, **{"rank.refine": "true", "rank.refine_offset": 0.0,
+                                                      "rank.refine_free_weight": free_weight})
+    T, c = lifted_contacts(world, 1, 0.10)
+    rng = np.random.default_rng(2)
+    poses = np.stack([T_TRUE @ make_pose(rotvec_to_rotmat(rng.normal(0, 0.03, 3)), rng.normal(0, 0.002, 3))
+                      for _ in range(4)])
+    st, sn = e.settings.rank, e.settings.sensors
+    out = rank_step.refine_and_score(e.penetration_model, e.surface, e.mesh, poses, T, c, st, sn, 4)
+    fit, _, on = rank_step.touching_fit(e.surface, c, st)
+    assert on.tolist() == [0, 2]
+    again = rank_step.score_refined(e.penetration_model, fit, e.mesh, out.poses, None, T, c, st, sn)
+    np.testing.assert_allclose(again.scores, out.scores, atol=1e-12)
+    np.testing.assert_allclose(again.depths, out.depths, atol=1e-12)
+    assert not np.allclose(out.poses, poses)  # refined: moved
+
+
 def test_a_pose_that_presses_a_sensor_showing_no_contact_pays_for_it(world):
     """The lifted sensor only 0.5 mm back: the true pose is still clear of it, a pose 3 mm further in presses it and
     scores worse by that press (beyond the allowance), though both fit the two touching sensors' contacts."""
@@ -171,7 +191,29 @@ def test_patch_points_are_the_pressed_gel_of_each_observed_mask_in_the_world_fra
     assert len(contacts.sensors_to_landmark_contacts(T).patch_points(T, 50)[0]) == 0
 
 
+def test_free_points_are_the_untouched_gel_on_a_grid_in_the_world_frame():
+    T = T_TRUE @ sensor.sensor_poses_touching(np.eye(3) * 0.05, np.eye(3), [0.1, 0.2, 0.3])
+    none = contact_patch.ContactPatch(False, np.zeros((H, W), bool), np.zeros((H, W), np.float32), None, None, 1.0)
+    read = fake_patch([0.02, 0.0, 0.01], [-1.0, 0, 0])
+    c = contacts.patches_to_contacts([read, none, read], T)
+    points, owners = c.free_points(T, 16)
+    # A 20 x 15 grid (pixel centres 8, 24, ...) less the one inside the mask (rows 100-119, cols 50-69: row 104, col 56).
+    grid = np.zeros((H, W), bool)
+    grid[8::16, 8::16] = True
+    expected = int((grid & ~read.mask).sum())
+    assert expected == 20 * 15 - 1
+    assert np.bincount(owners, minlength=3).tolist() == [expected, 0, expected]
+    undeformed = contact_patch.depth_to_points(np.zeros((H, W), np.float32))[grid & ~read.mask]  # sensor frame
+    for i in (0, 2):
+        local = (points[owners == i] - T[i, :3, 3]) @ T[i, :3, :3]
+        np.testing.assert_allclose(local, undeformed, atol=1e-9)
+    assert len(c.free_points(T, 0)[0]) == 0
+    assert len(contacts.sensors_to_landmark_contacts(T).free_points(T, 16)[0]) == 0
+
+
 @pytest.mark.parametrize("bad,message", [
+    ({"rank.refine_free_weight": -1.0}, "refine_free"),
+    ({"rank.refine_free_stride": 0}, "refine_free"),
     ({"select.contacts": "deepest"}, "select.contacts"),
     ({"rank.agreement_step": 7}, "agreement_step"),
     ({"rank.agreement_weight": -1.0}, "agreement"),

@@ -40,6 +40,19 @@ def test_implied_errors_are_the_object_seen_through_the_reported_poses():
     assert np.allclose(kb.implied_object_errors(T_wo, T_ws, T_ws), 0.0)
 
 
+def test_the_object_seen_through_the_true_errors_keeps_each_true_relative_pose():
+    rng = np.random.default_rng(4)
+    T_wo, T_ws = grasp(rng)
+    reported = T_ws @ frame_errors(rng, 3)
+    seen = kb.seen_through_true_errors(T_wo, reported, T_ws)
+    for i in range(3):
+        np.testing.assert_allclose(invert_pose(reported[i]) @ seen[i], invert_pose(T_ws[i]) @ T_wo, atol=1e-12)
+        # ... which is the object as the sensor's reported pose implies it (implied_object_errors' pose)
+        np.testing.assert_allclose(seen[i][:3, 3] - T_wo[:3, 3], kb.implied_object_errors(T_wo, T_ws, reported)[i, :3],
+                                   atol=1e-12)
+    np.testing.assert_allclose(kb.seen_through_true_errors(T_wo, T_ws, T_ws), np.repeat(T_wo[None], 3, axis=0), atol=1e-12)
+
+
 def test_jacobians_are_the_first_order_of_the_implied_errors():
     rng = np.random.default_rng(1)
     T_wo, T_ws = grasp(rng)

@@ -229,6 +229,8 @@ class RankSettings(_Section):
     refine_offset: float
     refine_patch_points: int
     refine_patch_weight: float
+    refine_free_weight: float
+    refine_free_stride: int
     agreement_weight: float
     agreement_step: int
     agreement_free_margin: float
@@ -248,6 +250,9 @@ class RankSettings(_Section):
         if self.refine_patch_points < 0 or self.refine_patch_weight < 0:
             raise ConfigError(f"rank.refine_patch_points and rank.refine_patch_weight must be >= 0, got "
                               f"{self.refine_patch_points}, {self.refine_patch_weight}")
+        if self.refine_free_weight < 0 or self.refine_free_stride < 1:
+            raise ConfigError(f"rank.refine_free_weight must be >= 0 and rank.refine_free_stride >= 1, got "
+                              f"{self.refine_free_weight}, {self.refine_free_stride}")
         weights = (self.agreement_weight, self.agreement_free_margin, self.agreement_mask_weight,
                    self.agreement_depth_weight, self.agreement_free_area_weight, self.agreement_free_depth_weight)
         if min(weights) < 0:

@@ -266,40 +266,76 @@ def refine_and_score(model: collision.PenetrationModel, surface, mesh, poses: np
     """The ranking's re-scoring of candidate poses (P, 4, 4), as ``rank`` and the tracker's updates score them.
 
     Each pose is refined against the touching sensors' contacts and patches (``refine``; with the sensors'
-    expected error, each touching sensor's pose corrected beside it, ``n_iterations`` steps) and scored through
+    expected error, each touching sensor's pose corrected beside it, ``n_iterations`` steps; with
+    ``refine_free_weight``, also kept off the gel the patches leave untouched) and scored (``score_refined``) through
     every sensor: ``d + refine_normal_weight * a + penetration_cost(depths) + pose_correction_weight *
     corrections``, plus ``agreement_weight`` times render-and-compare when ``mesh`` is given and the contacts
     hold observed patches (a sensor whose image shows no contact pays for a pose that presses it). surface: the
     object's surface samples; mesh: its mesh, or None to leave render-and-compare out.
     """
     # Refined against the sensors the object touches; scored below through every sensor.
-    on = np.flatnonzero(contacts.touching)
-    touched = contacts if len(on) == len(contacts.points) else contacts.of_sensors(on)
-    s, w = touched.points, float(settings.refine_normal_weight)
-    fit = refinement.SurfaceFit(surface, s, touched.normals, w, touched.offsets(settings.refine_offset))
+    fit, touched, on = touching_fit(surface, contacts, settings)
     extra, owners = touched.patch_points(T_world_sensors[on], int(settings.refine_patch_points))
     # Each sensor's patch points together weigh refine_patch_weight (residual weights add in squares).
-    per_sensor = np.bincount(owners, minlength=len(s))[owners]
-    extra_w = float(settings.refine_patch_weight) / np.sqrt(np.maximum(per_sensor, 1))
-    correction_cost, seen = 0.0, None  # seen: (P, L, 4, 4) the object as each corrected sensor sees it
+    extra_w = _per_sensor_weights(owners, len(on), float(settings.refine_patch_weight))
+    free, free_owners = {}, None  # the untouched gel's one-sided rows, with rank.refine_free_weight
+    if settings.refine_free_weight > 0:
+        points, free_owners = touched.free_points(T_world_sensors[on], int(settings.refine_free_stride))
+        free = dict(free_points=points, free_margin=float(settings.agreement_free_margin),
+                    free_weights=_per_sensor_weights(free_owners, len(on), float(settings.refine_free_weight)))
+    seen = None  # (P, L, 4, 4) the object as each corrected sensor sees it
     if not sensors.exact:
         sigma_contact, sigma_angle = sensors.correction_sigmas
         poses, seen_touched = refinement.refine_poses_and_sensors(
-            fit, poses, sigma_contact, sigma_angle, n_iterations=n_iterations,
-            patch_points=extra, patch_weights=extra_w, patch_owners=owners)
-        correction_cost = refinement.sensor_corrections_cost(poses, seen_touched, s, sigma_contact, sigma_angle)
+            fit, poses, sigma_contact, sigma_angle, n_iterations=n_iterations, patch_points=extra,
+            patch_weights=extra_w, patch_owners=owners, free_owners=free_owners, **free)
         seen = seen_touched
         if touched is not contacts:  # a sensor the object does not touch has no correction to see it through
             seen = np.repeat(poses[:, None], len(contacts.points), axis=1)
             seen[:, on] = seen_touched
     else:
-        poses = refinement.refine_poses(fit, poses, n_iterations, patch_points=extra, patch_weights=extra_w)
-    distance, angle = refinement.surface_losses(fit, poses if seen is None else seen_touched)
+        poses = refinement.refine_poses(fit, poses, n_iterations, patch_points=extra, patch_weights=extra_w, **free)
+    return score_refined(model, fit, mesh, poses, seen, T_world_sensors, contacts, settings, sensors)
+
+
+def touching_fit(surface, contacts: Contacts, settings: RankSettings) -> tuple[refinement.SurfaceFit, Contacts, np.ndarray]:
+    """What the refinement fits: the ``SurfaceFit`` of the sensors the object touches (``Contacts.touching``),
+    their contacts, and their indices (K,) among all sensors."""
+    on = np.flatnonzero(contacts.touching)
+    touched = contacts if len(on) == len(contacts.points) else contacts.of_sensors(on)
+    fit = refinement.SurfaceFit(surface, touched.points, touched.normals, float(settings.refine_normal_weight),
+                                touched.offsets(settings.refine_offset))
+    return fit, touched, on
+
+
+def _per_sensor_weights(owners: np.ndarray, n_sensors: int, weight: float) -> np.ndarray:
+    """Residual weights (M,) of points owned by sensors owners (M,) such that each sensor's points together
+    weigh ``weight`` (residual weights add in squares)."""
+    per_sensor = np.bincount(owners, minlength=n_sensors)[owners]
+    return weight / np.sqrt(np.maximum(per_sensor, 1))
+
+
+def score_refined(model: collision.PenetrationModel, fit: refinement.SurfaceFit, mesh, poses: np.ndarray,
+                  seen: np.ndarray | None, T_world_sensors: np.ndarray, contacts: Contacts, settings: RankSettings,
+                  sensors: SensorSettings) -> RefinedScores:
+    """The score of ``refine_and_score`` for poses (P, 4, 4) as they stand, not refined again.
+
+    seen (P, L, 4, 4): the object as each sensor sees it (its correction included, ``refine_poses_and_sensors``),
+    or None for exact sensor poses; fit: the touching sensors' (``touching_fit``). Also scores poses seen through
+    corrections of another origin: ``scripts/oracle_corrections.py`` scores the truth through the sensors' true
+    errors.
+    """
+    on = np.flatnonzero(contacts.touching)
+    w = fit.normal_weight
+    distance, angle = refinement.surface_losses(fit, poses if seen is None else seen[:, on])
     losses = distance + w * angle
+    correction_cost = 0.0
     if seen is None:
         depths = collision.poses_to_penetrations(model, poses, T_world_sensors)
     else:
         depths = seen_penetrations(model, seen, T_world_sensors)
+        sigma_contact, sigma_angle = sensors.correction_sigmas
+        correction_cost = refinement.sensor_corrections_cost(poses, seen[:, on], fit.points, sigma_contact, sigma_angle)
     scores = losses + penetration_cost(depths, sensors.contact_sigma)
     scores = scores + settings.pose_correction_weight * correction_cost
     agreement = np.zeros(len(poses))

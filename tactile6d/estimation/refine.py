@@ -23,6 +23,12 @@ their nearest sample, robustly weighted like the contacts); one sensor's patch p
 ``rank.refine_patch_weight`` times its contact point. A patch spans millimetres of surface, so it also
 fixes how the surface is tilted and curved there, which one point cannot.
 
+With ``rank.refine_free_weight`` above 0, the gel the patches leave untouched joins the fit too, one-sided: a
+point of the undeformed gel outside the observed mask (``Contacts.free_points``) that lies inside the object,
+deeper than a margin, is pushed out point-to-plane; one outside it costs nothing. The pressed points alone let a
+pose press the gel over a wider area than the image shows (render-and-compare then pays for it); these rows make
+the fit reproduce the image's extent as well (``free_rows``).
+
 Three contact points alone leave three degrees of freedom (each point-to-plane residual is one
 equation); the normal term adds two equations per sensor, which fixes the pose for L >= 2 and also
 tells apart hypotheses that fit the points equally well. ``surface_losses`` gives the two terms of
@@ -149,18 +155,44 @@ def _clip_step(step: np.ndarray) -> np.ndarray:
     return step
 
 
+def free_rows(q: np.ndarray, surface, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One-sided point-to-plane rows of untouched gel points q (P, F, 3), object frame, against the surface.
+
+    Each point is matched to its nearest surface sample (c, outward normal m); the signed distance m.(q - c) is
+    negative inside the object. -> r (P, F) = m.(q - c) + margin where that is below 0 (the point lies deeper
+    than margin inside) and the point is within ``2.5 * _ROBUST_DISTANCE`` of the sample (farther, the nearest
+    sample's normal says little about inside and out), else 0; J (P, F, 6) dr/d(v, omega) as the patch rows'
+    (-m, m x q); active (P, F) bool, where r is not 0 by the rule above.
+    """
+    distance, idx = surface.tree.query(q.reshape(-1, 3))
+    c, m = surface.points[idx].reshape(q.shape), surface.normals[idx].reshape(q.shape)
+    r = np.sum(m * (q - c), axis=-1) + margin
+    active = (r < 0.0) & (np.asarray(distance).reshape(r.shape) < 2.5 * _ROBUST_DISTANCE)
+    return np.where(active, r, 0.0), np.concatenate([-m, np.cross(m, q)], axis=-1), active
+
+
+def _free_weights(r: np.ndarray, active: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Residual weights (P, F) of ``free_rows``: squared weights (F,) times the robust (Cauchy) weight where active."""
+    return np.where(active, weights / (1.0 + (r / _ROBUST_DISTANCE) ** 2), 0.0)
+
+
 def refine_poses(
     fit: SurfaceFit,
     poses: np.ndarray,
     n_iterations: int = 8,
     patch_points: np.ndarray | None = None,
     patch_weights: np.ndarray | None = None,
+    free_points: np.ndarray | None = None,
+    free_weights: np.ndarray | None = None,
+    free_margin: float = 0.0,
 ) -> np.ndarray:
     """Refine poses (P, 4, 4) so the sensors of ``fit`` touch its surface (module docstring) -> (P, 4, 4).
 
     patch_points (M, 3), world frame, with patch_weights (M,): further points known to lie on the
     surface (the pressed gel of the observed contact patches, ``Contacts.patch_points``), each fitted
-    point-to-plane to its nearest surface sample with residual weight ``patch_weights``.
+    point-to-plane to its nearest surface sample with residual weight ``patch_weights``. free_points
+    (F, 3), world frame, with free_weights (F,): points of untouched gel (``Contacts.free_points``) that
+    the surface must not lie beyond by more than free_margin (m), fitted one-sided (``free_rows``).
     """
     T, s, n, surface = np.array(poses, dtype=np.float64).reshape(-1, 4, 4), fit.points, fit.normals, fit.surface
     n_poses = T.shape[0]
@@ -173,6 +205,10 @@ def refine_poses(
     if has_patch:
         extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
         extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
+    has_free = free_points is not None and len(free_points) > 0
+    if has_free:
+        free = np.asarray(free_points, dtype=np.float64).reshape(-1, 3)
+        free_w = np.asarray(free_weights, dtype=np.float64).reshape(-1) ** 2
     for _ in range(int(n_iterations)):
         q, u = _local(T, s, n)
         c, m = fit.match(q, u)
@@ -184,6 +220,11 @@ def refine_poses(
                                                    surface.normals[idx].reshape(qp.shape), 0.0, extra_w)
             JtJ += patch_JtJ
             Jtr += patch_Jtr
+        if has_free:
+            r_f, J_f, active = free_rows(_to_object(T, free), surface, free_margin)
+            rho_f = _free_weights(r_f, active, free_w)
+            JtJ += np.einsum("pf,pfa,pfb->pab", rho_f, J_f, J_f)
+            Jtr += np.einsum("pf,pfa,pf->pa", rho_f, J_f, r_f)
         if w > 0:
             r_n, J_n, rho_n = _normal_rows(u, m, w)
             JtJ[:, 3:, 3:] += np.einsum("pl,plia,plib->pab", rho_n, J_n, J_n)
@@ -217,6 +258,10 @@ def refine_poses_and_sensors(
     patch_points: np.ndarray | None = None,
     patch_weights: np.ndarray | None = None,
     patch_owners: np.ndarray | None = None,
+    free_points: np.ndarray | None = None,
+    free_weights: np.ndarray | None = None,
+    free_owners: np.ndarray | None = None,
+    free_margin: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``refine_poses`` for sensor poses that are off (forward kinematics): each sensor's small pose error
     is estimated beside the object's pose -> (poses (P, 4, 4), seen (P, L, 4, 4)).
@@ -228,8 +273,8 @@ def refine_poses_and_sensors(
     turn ``omega`` ``sigma_angle`` (rad), both against the residuals' own noise ``fit_noise`` (m), so that a
     correction of one sigma costs as much as a residual of ``fit_noise``. Contacts that no single object
     pose explains are then explained by small sensor errors instead of by moving the object, which the
-    contacts common to every sensor still do. Other arguments as ``refine_poses``; patch_owners (M,) the
-    sensor each patch point belongs to. With sigmas of 0 use ``refine_poses``.
+    contacts common to every sensor still do. Other arguments as ``refine_poses``; patch_owners (M,) and
+    free_owners (F,) the sensor each patch point and free point belongs to. With sigmas of 0 use ``refine_poses``.
     """
     T, s, n, surface = np.array(poses, dtype=np.float64).reshape(-1, 4, 4), fit.points, fit.normals, fit.surface
     n_poses, n_sensors = T.shape[0], s.shape[0]
@@ -246,6 +291,11 @@ def refine_poses_and_sensors(
         extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
         extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
         owners = np.eye(n_sensors)[np.asarray(patch_owners, dtype=int).reshape(-1)]  # (M, L) one-hot
+    has_free = free_points is not None and len(free_points) > 0
+    if has_free:
+        free = np.asarray(free_points, dtype=np.float64).reshape(-1, 3)
+        free_w = np.asarray(free_weights, dtype=np.float64).reshape(-1) ** 2
+        free_owned = np.eye(n_sensors)[np.asarray(free_owners, dtype=int).reshape(-1)]  # (F, L) one-hot
     a_scale, b_scale = fit_noise / sigma_contact, fit_noise / sigma_angle
     for _ in range(int(n_iterations)):
         R_seen = seen[..., :3, :3]
@@ -267,6 +317,13 @@ def refine_poses_and_sensors(
             rhop = extra_w / (1.0 + (rp / _ROBUST_DISTANCE) ** 2)
             B += np.einsum("pm,ml,pma,pmb->plab", rhop, owners, Jp, Jp)
             g += np.einsum("pm,ml,pma,pm->pla", rhop, owners, Jp, rp)
+        if has_free:
+            R_own = np.einsum("fl,plab->pfab", free_owned, R_seen)
+            t_own = np.einsum("fl,pla->pfa", free_owned, seen[..., :3, 3])
+            r_f, J_f, active = free_rows(np.einsum("pfba,pfb->pfa", R_own, free[None] - t_own), surface, free_margin)
+            rho_f = _free_weights(r_f, active, free_w)
+            B += np.einsum("pf,fl,pfa,pfb->plab", rho_f, free_owned, J_f, J_f)
+            g += np.einsum("pf,fl,pfa,pf->pla", rho_f, free_owned, J_f, r_f)
         if w > 0:
             r_n, J_n, rho_n = _normal_rows(u, m, w)
             B[..., 3:, 3:] += np.einsum("pl,plia,plib->plab", rho_n, J_n, J_n)

@@ -41,6 +41,15 @@ def true_sensor_poses(scenes, s: int) -> np.ndarray | None:
     return np.asarray(scenes["T_world_sensors"][s]) @ invert_pose(error)
 
 
+def seen_through_true_errors(T_world_object: np.ndarray, T_reported: np.ndarray, T_true: np.ndarray) -> np.ndarray:
+    """The object (4, 4) as each sensor sees it through its reported pose (L, 4, 4) when its correction is the
+    sensor's true error (T_true (L, 4, 4)) -> (L, 4, 4) ``T_reported_i inv(T_true_i) T_world_object``: the pose
+    whose relative pose to the reported sensor is the true one, ``inv(T_reported_i) seen_i = inv(T_true_i)
+    T_world_object`` (the ``seen`` of ``refine.refine_poses_and_sensors``, with the corrections an oracle knows)."""
+    T_reported, T_true = np.asarray(T_reported, dtype=np.float64), np.asarray(T_true, dtype=np.float64)
+    return np.stack([T_reported[i] @ invert_pose(T_true[i]) @ np.asarray(T_world_object) for i in range(len(T_true))])
+
+
 def poses_to_object_jacobians(T_world_object: np.ndarray, T_world_sensors: np.ndarray) -> np.ndarray:
     """(4, 4), (L, 4, 4) true poses -> (L, 6, 6): each sensor's frame error (t, w) to the error of the object
     pose it implies (world position, world rotation vector), to first order (module docstring)."""

@@ -97,6 +97,31 @@ class Contacts:
             return np.zeros((0, 3)), np.zeros(0, dtype=int)
         return np.concatenate(points), np.concatenate(owners)
 
+    def free_points(self, T_world_sensors: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray]:
+        """Points of the gel the observed patches leave untouched, where the object's surface must not be.
+
+        T_world_sensors (L, 4, 4). Each sensor read from its image gives the pixels outside its mask on a
+        grid of ``stride`` pixels, lifted to the undeformed gel surface (press depth 0). -> points (F, 3) m,
+        world frame, and the sensor of each (F,) int (none for a sensor without contact, nor without
+        observed patches).
+        """
+        if not self.observed or stride < 1:
+            return np.zeros((0, 3)), np.zeros(0, dtype=int)
+        T = np.asarray(T_world_sensors, dtype=np.float64)
+        points, owners = [], []
+        for i in np.flatnonzero(self.from_patch):
+            grid = np.zeros(self.masks[i].shape, dtype=bool)
+            grid[stride // 2 :: stride, stride // 2 :: stride] = True
+            rows, cols = np.nonzero(grid & ~self.masks[i])
+            if len(rows) == 0:
+                continue
+            local = pixels_to_points(np.zeros(self.masks[i].shape, dtype=np.float32), rows, cols)
+            points.append(local @ T[i, :3, :3].T + T[i, :3, 3])
+            owners.append(np.full(len(rows), i))
+        if not points:
+            return np.zeros((0, 3)), np.zeros(0, dtype=int)
+        return np.concatenate(points), np.concatenate(owners)
+
 
 class UntouchedSensorWarning(UserWarning):
     """Some sensors' images show no contact while others' do: the estimate rests on those that do."""
