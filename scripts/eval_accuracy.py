@@ -32,6 +32,7 @@ from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.evaluation import scoring
 from tactile6d.evaluation.metric_table import ERROR_KEYS
 from tactile6d.evaluation.sensor_subsets import estimate_and_score
+from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import scenes, surface_sampling
 
 
@@ -61,7 +62,7 @@ def main() -> int:
     parser.add_argument("--objects", nargs="*", help="only these objects")
     parser.add_argument("--out", help="write per-scene errors (npz) here")
     parser.add_argument("overrides", nargs="*")
-    args = parser.parse_args()
+    args = parse_with_overrides(parser)
 
     cfg = compose_config([f"select.method={args.method}", *args.overrides])
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))

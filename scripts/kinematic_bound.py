@@ -26,6 +26,7 @@ from tactile6d.core.config import compose_config  # noqa: E402
 from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.evaluation.kinematic_bound import scene_bound, true_sensor_poses  # noqa: E402
+from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 
 
 def summary(values_m: list[float]) -> str:
@@ -54,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sigma-mm", type=float, default=None, help="declared error per axis (default: the set's)")
     parser.add_argument("--sigma-deg", type=float, default=None)
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
-    args = parser.parse_args(argv)
+    args = parse_with_overrides(parser, argv)
     cfg = compose_config(args.overrides)
     print("positional error, cm, mean (median) over scenes")
     for scene_set in args.scenes:

@@ -41,6 +41,7 @@ from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.estimation.optimize import use_cpu_devices_for  # noqa: E402
 from tactile6d.estimation.tracker import Tracker, TrackSettings  # noqa: E402
 from tactile6d.evaluation.tracking_accuracy import track_frames, true_runs  # noqa: E402
+from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.render import DigitRenderer, load_background_bgr, mesh_arrays  # noqa: E402
 
 
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lost-cm", type=float, default=2.0)
     parser.add_argument("--true-sensors", action="store_true", help="track through the true sensor poses")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")
-    args = parser.parse_args(argv)
+    args = parse_with_overrides(parser, argv)
     cfg = compose_config(args.overrides)
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     seq = read_artifact(layout.sequences_file(args.artifacts, "tracking"), "sequences")

@@ -2,8 +2,14 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 REPO = Path(__file__).resolve().parent.parent
+
+# The property tests check results, not speed: hypothesis's default deadline (200 ms an example) failed
+# test_symmetric_to_eigen_matches_eigh on a busy machine (2026-12-02), which the suite must pass on.
+settings.register_profile("tactile6d", deadline=None)
+settings.load_profile("tactile6d")
 
 
 def pytest_collection_modifyitems(config, items):
