@@ -180,7 +180,7 @@ def test_free_rows_push_only_points_inside_the_surface_as_a_naive_loop_does():
     # Points within a few millimetres of the +x and +z faces, inside and out, and some far off the surface.
     near = np.concatenate([[0.05, 0.0, 0.0] + rng.uniform([-0.004, -0.02, -0.05], [0.004, 0.02, 0.05], (20, 3)),
                            [0.0, 0.0, 0.08] + rng.uniform([-0.03, -0.02, -0.004], [0.03, 0.02, 0.004], (20, 3)),
-                           rng.uniform(-0.2, 0.2, (8, 3)) * [1, 1, 1] + [0.3, 0.0, 0.0]])
+                           rng.uniform(-0.2, 0.2, (8, 3)) + [0.3, 0.0, 0.0]])
     q = np.stack([near, near + 0.001])
     r, J, active = refine.free_rows(q, surface, 3e-4)
     r_naive, J_naive, active_naive = _free_rows_naive(q, surface, 3e-4)
