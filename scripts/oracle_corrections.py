@@ -61,17 +61,22 @@ def oracle_score(est: Estimator, truth: np.ndarray, T_reported: np.ndarray, T_tr
         raise SystemExit("the oracle's corrections are scored as corrections: needs sensors.pose_sigma_* > 0")
     fit, _, _ = rank_step.touching_fit(est.surface, contacts, settings)
     seen = seen_through_true_errors(truth, T_reported, T_true)[None]
-    mesh = est.mesh if settings.uses_agreement and contacts.observed else None
-    return rank_step.score_refined(est.penetration_model, fit, mesh, truth[None], seen, np.asarray(T_reported),
-                                   contacts, settings, sensors)
+    return rank_step.score_refined(est.penetration_model, fit, agreement_mesh(est, contacts), truth[None], seen,
+                                   np.asarray(T_reported), contacts, settings, sensors)
 
 
 def refined_truth(est: Estimator, truth: np.ndarray, T_reported: np.ndarray, contacts) -> rank_step.RefinedScores:
     """The true pose (4, 4) refined from zero corrections and scored, as the ranking re-scores a candidate."""
     settings = est.settings.rank
-    mesh = est.mesh if settings.uses_agreement and contacts.observed else None
-    return rank_step.refine_and_score(est.penetration_model, est.surface, mesh, truth[None], np.asarray(T_reported),
-                                      contacts, settings, est.settings.sensors, int(settings.refine_iterations))
+    return rank_step.refine_and_score(est.penetration_model, est.surface, agreement_mesh(est, contacts), truth[None],
+                                      np.asarray(T_reported), contacts, settings, est.settings.sensors,
+                                      int(settings.refine_iterations))
+
+
+def agreement_mesh(est: Estimator, contacts):
+    """The mesh render-and-compare scores against, as the ranking passes it: None when it is off or the
+    contacts hold no observed patches."""
+    return est.mesh if est.settings.rank.uses_agreement and contacts.observed else None
 
 
 def split(terms: np.ndarray) -> str:
