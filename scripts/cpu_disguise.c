@@ -2,6 +2,8 @@
 
 Built and used by scripts/cpu_disguise.py (read its docstring). With CPUID_DISGUISE set to a comma list of
   amd         vendor AuthenticAMD, family 19h (Zen 3), AMD's cache leaves (Zen 3's caches), no Intel leaf 4
+  intel       on an AMD CPU: vendor GenuineIntel, family 6 model 6Ah (Ice Lake server), Intel's cache leaves
+              2 and 4 (Zen 3's sizes), no AMD-only extended leaves; on an Intel CPU nothing changes
   noavx512    no AVX-512 (nor AMX, AVX-VNNI, AVX512-BF16/FP16) in leaf 7
   smallcache  Intel's cache leaf 4 reports Zen 3's sizes (L1d 32 KiB, L2 512 KiB, L3 32 MiB)
 it turns on the kernel's CPUID faulting for the process (arch_prctl ARCH_SET_CPUID, kept across fork and
@@ -21,7 +23,7 @@ no CPUID faulting (the cpuid_fault flag of /proc/cpuinfo). */
 #include <ucontext.h>
 #include <unistd.h>
 
-static int amd, no_avx512, small_cache, active;  /* active: our SIGSEGV handler is installed */
+static int amd, intel, no_avx512, small_cache, active;  /* active: our SIGSEGV handler is installed */
 
 static long set_cpuid(int enabled) { return syscall(SYS_arch_prctl, ARCH_SET_CPUID, (unsigned long)enabled); }
 
@@ -36,6 +38,20 @@ static void amd_cache(uint32_t sub, uint32_t *a, uint32_t *b, uint32_t *c, uint3
     *d = sub == 3 ? 1u : 0u;
 }
 
+/* What an Intel CPU answers where an AMD one answers otherwise. AMD's leaf 4 is empty and its extended leaves
+   carry the caches and AMD-only features; Intel reports caches through leaves 2 and 4. Only called on AMD. */
+static void intel_on_amd(uint32_t leaf, uint32_t sub, uint32_t *a, uint32_t *b, uint32_t *c, uint32_t *d) {
+    if (leaf == 0) { memcpy(b, "Genu", 4); memcpy(d, "ineI", 4); memcpy(c, "ntel", 4); }
+    if (leaf == 1) *a = 0x000606A6; /* family 6, model 6Ah, stepping 6 (Ice Lake server) */
+    if (leaf == 2) { *a = 0x00FEFF01; *b = 0xF0; *c = *d = 0; } /* descriptor FFh: read leaf 4 */
+    if (leaf == 4) amd_cache(sub, a, b, c, d);
+    if (leaf == 0x80000000) *a = 0x80000008;
+    if (leaf == 0x80000001) *c &= ~((1u << 2) | (1u << 6) | (1u << 11) | (1u << 16) | (1u << 22) | (1u << 23)); /* SVM, SSE4A, XOP, FMA4, TOPOEXT, PERFCTR */
+    if (leaf == 0x80000005) *a = *b = *c = *d = 0;
+    if (leaf == 0x80000006) { *a = *b = *d = 0; *c = (512u << 16) | (6u << 12) | 64u; }
+    if (leaf > 0x80000008 && leaf < 0x90000000) *a = *b = *c = *d = 0;
+}
+
 static void disguise(uint32_t leaf, uint32_t sub, uint32_t *a, uint32_t *b, uint32_t *c, uint32_t *d) {
     if (no_avx512 && leaf == 7 && sub == 0) {
         *b &= ~((1u << 16) | (1u << 17) | (1u << 21) | (1u << 26) | (1u << 27) | (1u << 28) | (1u << 30) | (1u << 31));
@@ -44,6 +60,7 @@ static void disguise(uint32_t leaf, uint32_t sub, uint32_t *a, uint32_t *b, uint
     }
     if (no_avx512 && leaf == 7 && sub == 1) *a &= ~((1u << 4) | (1u << 5));
     if (small_cache && leaf == 4) { uint32_t keep = *a & 0xfc000000u; amd_cache(sub, a, b, c, d); if (*a) *a |= keep; }
+    if (intel) intel_on_amd(leaf, sub, a, b, c, d);
     if (!amd) return;
     if (leaf == 0) { memcpy(b, "Auth", 4); memcpy(d, "enti", 4); memcpy(c, "cAMD", 4); }
     if (leaf == 1) *a = 0x00A00F11; /* family 19h (Zen 3), model 01h */
@@ -94,6 +111,9 @@ __attribute__((constructor)) static void start(void) {
     const char *what = getenv("CPUID_DISGUISE");
     if (!what) return;
     amd = strstr(what, "amd") != NULL;
+    uint32_t a, b, c, d;
+    __cpuid(0, a, b, c, d);  /* the host's vendor, before faulting is on: "intel" rewrites an AMD CPU only */
+    intel = strstr(what, "intel") != NULL && memcmp(&b, "Auth", 4) == 0;
     no_avx512 = strstr(what, "noavx512") != NULL;
     small_cache = strstr(what, "smallcache") != NULL;
     struct sigaction sa;

@@ -13,11 +13,15 @@ answer as the disguise says:
 - ``amd-zen3``: an AMD EPYC of the Zen 3 kind: vendor AuthenticAMD, AVX2 without AVX-512, AMD's cache
   leaves (L1d 32 KiB, L2 512 KiB, L3 32 MiB);
 - ``amd-avx512``: the same with this CPU's AVX-512 left visible (as on Zen 4);
-- ``intel-avx2``: this CPU without AVX-512, its caches reported at Zen 3's sizes.
+- ``intel-avx2``: an Intel CPU without AVX-512, its caches reported at Zen 3's sizes;
+- ``intel-avx512``: an Intel CPU with this CPU's AVX-512 left visible (as on the Intel Xeons CI ran on).
+
+On an Intel CPU the ``intel`` disguises change no vendor, on an AMD CPU the ``amd`` ones none: each
+machine checks the other vendor's libraries' choices, and its own with and without AVX-512.
 
 Only what CPUID reports changes: the instructions that run are this CPU's, so an AVX-512 kernel still runs
 if a library picks one without asking. It needs Linux's CPUID faulting (the ``cpuid_fault`` flag in
-/proc/cpuinfo; most Intel CPUs since Ivy Bridge and their VMs have it) and ``cc``. ``--probe`` prints the
+/proc/cpuinfo; most Intel CPUs since Ivy Bridge and AMD CPUs since Zen 4, and their VMs, have it) and ``cc``. ``--probe`` prints the
 vendor and the AVX-512 bit a process sees, read with the CPUID instruction itself.
 """
 
@@ -34,7 +38,8 @@ import tempfile
 from pathlib import Path
 
 SOURCE = Path(__file__).resolve().with_suffix(".c")
-DISGUISES = {"amd-zen3": "amd,noavx512", "amd-avx512": "amd", "intel-avx2": "noavx512,smallcache"}
+DISGUISES = {"amd-zen3": "amd,noavx512", "amd-avx512": "amd", "intel-avx2": "intel,noavx512,smallcache",
+             "intel-avx512": "intel"}
 
 # x86-64 System V machine code of `void cpuid(uint32 leaf, uint32 subleaf, uint32 out[4])`:
 # push rbx; mov eax, edi; mov ecx, esi; mov r8, rdx; cpuid; mov [r8], eax; mov [r8+4], ebx;
