@@ -1,0 +1,74 @@
+"""scripts/real_setup_check.py: what each condition changes in a scene set, and the figures of a condition."""
+
+import numpy as np
+import pytest
+from script_loader import load_script
+
+from tactile6d.core import geometry as g
+from tactile6d.sim import scenes
+
+check = load_script("real_setup_check")
+
+
+def small_set(n=3, L=3) -> scenes.SceneSet:
+    rng = np.random.default_rng(0)
+    T_sensors = np.broadcast_to(g.make_pose(np.eye(3), [0.1, 0.0, 0.2]), (n, L, 4, 4)).copy()
+    return scenes.SceneSet(names=np.array([f"s{i}" for i in range(n)]), objects=np.array(["a", "a", "b"][:n]),
+                           T_world_object=np.broadcast_to(np.eye(4), (n, 4, 4)).copy(), T_world_sensors=T_sensors,
+                           images=rng.integers(40, 200, (n, L, 320, 240, 3), dtype=np.uint8),
+                           contact_points=np.zeros((n, L, 3)), contact_normals=np.zeros((n, L, 3)),
+                           contact_types=np.zeros((n, L), dtype=np.int64))
+
+
+BACKGROUND = np.full((320, 240, 3), 120, np.uint8)
+
+
+def test_clean_is_the_set_itself():
+    s = small_set()
+    assert check.real_set_up(s, "clean", BACKGROUND, np.random.default_rng(0)) is s
+
+
+def test_noise_changes_the_images_by_about_its_sigma_and_nothing_else():
+    s = small_set()
+    out = check.real_set_up(s, "noise", BACKGROUND, np.random.default_rng(0))
+    diff = out.images.astype(float) - s.images
+    assert diff.std() == pytest.approx(check.NOISE_STD, rel=0.05)
+    np.testing.assert_array_equal(out.T_world_sensors, s.T_world_sensors)
+    assert out.backgrounds is None
+
+
+def test_light_drifts_each_sensor_and_keeps_the_old_no_contact_image():
+    s = small_set()
+    out = check.real_set_up(s, "light", BACKGROUND, np.random.default_rng(0))
+    gains, gammas = out.extra["light_gain"], out.extra["light_gamma"]
+    assert gains.shape == (3, 3, 3) and np.all(np.abs(gains - 1) <= check.GAIN_MAX)
+    assert np.all((gammas >= check.GAMMA_RANGE[0]) & (gammas <= check.GAMMA_RANGE[1]))
+    assert not out.extra["background_rerecorded"].any()  # the unit's no-contact image is the one of before
+    np.testing.assert_array_equal(out.backgrounds, np.broadcast_to(BACKGROUND, out.backgrounds.shape))
+    assert np.abs(out.images.astype(float) - s.images).mean() > 3  # a drift, not only the noise
+    np.testing.assert_array_equal(out.T_world_object, s.T_world_object)
+
+
+def test_kinematic_moves_the_sensor_poses_by_the_declared_sigmas_and_keeps_the_images():
+    s = small_set(n=3, L=3)
+    out = check.real_set_up(s, "kinematic", BACKGROUND, np.random.default_rng(0))
+    np.testing.assert_array_equal(out.images, s.images)
+    moved = np.linalg.inv(s.T_world_sensors) @ out.T_world_sensors  # the error, in each sensor's frame
+    np.testing.assert_allclose(moved[..., :3, 3], out.extra["pose_error_translation"], atol=1e-12)
+    assert 0 < np.abs(out.extra["pose_error_translation"]).max() < 6 * 1e-3 * check.SIGMA_MM
+
+
+def test_an_unknown_condition_is_refused():
+    with pytest.raises(ValueError, match="choose from"):
+        check.real_set_up(small_set(), "fog", BACKGROUND, np.random.default_rng(0))
+
+
+def test_the_row_of_a_condition_against_a_naive_count():
+    # 4 scenes of 2 objects, 2 ranked poses each (m): the best pose's error and ADI in column 0.
+    position = np.array([[0.004, 0.1], [0.03, 0.1], [0.01, 0.1], [np.nan, np.nan]])
+    adi = np.array([[0.002, 0.05], [0.025, 0.05], [0.019, 0.05], [np.nan, np.nan]])
+    errors = {"position": position, "adi": adi, "adi_rotation": adi, "contact_ok": np.ones((4, 2), bool)}
+    row = check.summary_row(errors, np.array(["a", "a", "b", "b"]))
+    assert row["pos_err_cm_mean"] == pytest.approx(100 * np.mean([0.004, 0.03, 0.01]), abs=0.005)
+    assert row["pos_err_cm_median"] == pytest.approx(1.0)
+    assert row["adi_within_2cm_pct"] == pytest.approx(50.0)  # 2 of 4: a failed scene is not within
