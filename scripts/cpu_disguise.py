@@ -21,8 +21,9 @@ machine checks the other vendor's libraries' choices, and its own with and witho
 
 Only what CPUID reports changes: the instructions that run are this CPU's, so an AVX-512 kernel still runs
 if a library picks one without asking. It needs Linux's CPUID faulting (the ``cpuid_fault`` flag in
-/proc/cpuinfo; most Intel CPUs since Ivy Bridge and AMD CPUs since Zen 4, and their VMs, have it) and ``cc``. ``--probe`` prints the
-vendor and the AVX-512 bit a process sees, read with the CPUID instruction itself.
+/proc/cpuinfo; most Intel CPUs since Ivy Bridge and their VMs have it, some AMD VMs too: the Zen 4 of
+2026-12-04 had it, the Zen 3 and Zen 5 here did not) and ``cc``. ``--probe`` prints the vendor and the
+AVX-512 bit a process sees, read with the CPUID instruction itself.
 """
 
 from __future__ import annotations

@@ -7,8 +7,9 @@ an AVX2-only machine would pick: the bits must be equal. On a CPU with AVX-512, 
 covers every library these steps use (a missing one takes the AVX-512 path and changes the bits); on an
 AVX2-only CPU both runs take the AVX2 path anyway. The disguise tests run the same child with CPUID
 answering as another CPU (scripts/cpu_disguise.py: an AMD Zen 3, an AMD with AVX-512, an Intel without
-AVX-512 and with other cache sizes, an Intel with AVX-512): the bits must equal this machine's, which is what "the same bits on
-every CPU" asks of the stages; they are skipped where the kernel offers no CPUID faulting.
+AVX-512 and with other cache sizes, an Intel with AVX-512): the bits must equal this machine's, which is
+what "the same bits on every CPU" asks of the stages; they are skipped where the kernel offers no CPUID
+faulting.
 """
 
 import json
