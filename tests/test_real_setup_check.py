@@ -72,3 +72,26 @@ def test_the_row_of_a_condition_against_a_naive_count():
     assert row["pos_err_cm_mean"] == pytest.approx(100 * np.mean([0.004, 0.03, 0.01]), abs=0.005)
     assert row["pos_err_cm_median"] == pytest.approx(1.0)
     assert row["adi_within_2cm_pct"] == pytest.approx(50.0)  # 2 of 4: a failed scene is not within
+
+
+def test_the_drift_drawn_is_read_back_and_a_clean_set_has_none():
+    s = small_set()
+    drifted = check.real_set_up(s, "light", BACKGROUND, np.random.default_rng(0))
+    gain, gamma = check.drift_drawn(drifted, 1)
+    np.testing.assert_array_equal(gain, drifted.extra["light_gain"][1])
+    np.testing.assert_array_equal(gamma, drifted.extra["light_gamma"][1])
+    np.testing.assert_array_equal(check.drift_drawn(s, 1)[0], np.ones((3, 3)))
+
+
+def test_the_light_fits_row_against_a_naive_count():
+    from tactile6d.perception.photometric import LightFit
+
+    def fit(gain, gamma, outliers, applied):  # the LightFit whose gain and gamma are these
+        exponent = 1.0 / np.asarray(gamma, float)
+        return LightFit(-np.log(gain) * exponent, exponent, np.zeros(3), outliers, applied)
+
+    fits = [fit([1.0, 1.1, 1.0], [1.0, 1.0, 1.0], 0.2, True), fit([1.0, 1.0, 1.0], [1.2, 1.0, 1.0], 0.4, False)]
+    row = check.light_fit_row(fits, np.ones((2, 3)), np.ones((2, 3)))
+    assert row["gain_err_median"] == pytest.approx(0.05, abs=1e-4)  # 0.1 and 0.0
+    assert row["gamma_err_p90"] == pytest.approx(0.18, abs=1e-4)  # 0.0 and 0.2
+    assert row["outliers_mean"] == pytest.approx(0.3) and row["applied"] == 1 and row["images"] == 2
