@@ -23,7 +23,7 @@ median over scenes (cm), the share of scenes whose best pose is within 2 cm ADI,
 averaged over objects and the failures. ``--light-fits`` adds how well the light was fitted (``clean`` and
 ``light``): over the images, the median and 90th percentile of the fit's error against the drift drawn (none
 for ``clean``), in gain and gamma (the channel farthest off), the share of blocks outside the fit and how many
-images the fit was applied to; it estimates the set once more to read the fits. The test set is looked at after a decision, never to make one:
+images the fit was applied to (``photometric.align_images``, the fits the estimator makes). The test set is looked at after a decision, never to make one:
 tune on the generated sets.
 """
 
@@ -48,6 +48,7 @@ from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.evaluation import scoring
 from tactile6d.evaluation.metric_table import ERROR_KEYS
 from tactile6d.evaluation.sensor_subsets import estimate_and_score
+from tactile6d.perception import photometric
 from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
 
@@ -120,18 +121,13 @@ def main() -> int:
     cfg = compose_config(args.overrides)
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
     clean = scenes.scene_set_from_artifact(read_artifact(layout.scenes_file(args.artifacts, args.scenes), "scenes"))
-    estimators, references = {}, {}
+    estimators = {o: Estimator.from_artifacts(o, args.artifacts, cfg) for o in dict.fromkeys(clean.objects.tolist())}
+    references = {o: scoring.load_object_reference(args.artifacts, o) for o in estimators}
+    background = next(iter(estimators.values())).no_contact  # the one the set was rendered over: the default
     for condition in args.conditions:
-        rng = np.random.default_rng((args.seed, CONDITIONS.index(condition)))
+        scene_set = real_set_up(clean, condition, background, np.random.default_rng((args.seed, CONDITIONS.index(condition))))
         rows, failed = {key: [] for key in ERROR_KEYS}, 0
-        scene_set = None
-        for s in range(len(clean)):
-            obj = str(clean.objects[s])
-            if obj not in estimators:
-                estimators[obj] = Estimator.from_artifacts(obj, args.artifacts, cfg)
-                references[obj] = scoring.load_object_reference(args.artifacts, obj)
-            if scene_set is None:  # the no-contact image the set was rendered over: the estimator's default
-                scene_set = real_set_up(clean, condition, estimators[obj].no_contact, rng)
+        for s, obj in enumerate(clean.objects.tolist()):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 scored = estimate_and_score(estimators[obj], scene_set.T_world_sensors[s], scene_set.images[s],
@@ -142,16 +138,13 @@ def main() -> int:
         errors = {key: np.array(v) for key, v in rows.items()}
         light = {}
         if args.light_fits and condition in ("clean", "light"):
-            fits, gains, gammas = [], [], []
-            for s in range(len(clean)):
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    fits += list(estimators[str(clean.objects[s])].estimate(
-                        scene_set.T_world_sensors[s], scene_set.images[s], scene_set.backgrounds_of(s)).light)
-                gain, gamma = drift_drawn(scene_set, s)
-                gains.append(gain)
-                gammas.append(gamma)
-            light = {"light_fits": light_fit_row(fits, np.concatenate(gains), np.concatenate(gammas))}
+            # The estimator's own fits (select.align_light): each image against its sensor's no-contact image.
+            fits = [fit for s, obj in enumerate(clean.objects.tolist())
+                    for fit in photometric.align_images(scene_set.images[s], estimators[obj].backgrounds(
+                        len(scene_set.images[s]), scene_set.backgrounds_of(s)))[1]]
+            drawn = [drift_drawn(scene_set, s) for s in range(len(clean))]
+            light = {"light_fits": light_fit_row(fits, np.concatenate([g for g, _ in drawn]),
+                                                 np.concatenate([e for _, e in drawn]))}
         print(json.dumps({"scenes": args.scenes, "condition": condition, "overrides": args.overrides,
                           "seed": args.seed, "n": len(clean), "failed": int(failed),
                           **summary_row(errors, clean.objects), **light}), flush=True)
