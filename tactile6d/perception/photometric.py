@@ -12,12 +12,17 @@ log values) on pairs of values at the same place in the image and in its no-cont
 over blocks of ``BLOCK`` x ``BLOCK`` pixels first (the camera noise, 7 grey levels in the simulator, would
 otherwise bias the fitted exponent towards 0: regression dilution). Where the gel is not touched the pairs
 lie on that line up to noise; where it is, they scatter off it. A press often covers most of the gel, so
-the line is not what most pairs follow but the tightest line that some do: a search over the exponent
-(``EXPONENTS``) for the offset that the most pairs fit within ``TOLERANCE`` (a mode search, deterministic),
-then iteratively reweighted least squares (Tukey's biweight) on the pairs near it, with the scale of the
-residuals taken from those pairs only. Where a channel's no-contact image has too little spread to tell a
-gamma from a gain (a flat background), the exponent stays near 1 (ties go to the exponent nearest 1, and a
-weak prior in the refinement). The fit is applied as one lookup table per channel.
+the line is not what most pairs follow but the tightest line that some do: per channel, a search over the
+exponent (``EXPONENTS``) for the offsets that many pairs fit within ``TOLERANCE`` (a mode search,
+deterministic), keeping the ``CANDIDATES`` densest distinct lines; then the combination of one line per
+channel that the most blocks follow in all three channels at once, and iteratively reweighted least squares
+(Tukey's biweight) on the blocks near it in all three. An untouched block follows the light in every
+channel; a pressed one can fall on a line in one channel (a flat face pressed into most of the gel shifts
+its colours almost uniformly), seldom on the same wrong combination in all three, which a search per channel
+took for the light when a press left only the gel's corners (docs/real_sensors.md). Where a channel's
+no-contact image has too little spread to tell a gamma from a gain (a flat background), the exponent stays
+near 1 (ties go to the exponent nearest 1, and a weak prior in the refinement). The fit is applied as one
+lookup table per channel.
 
 ``LightFit.trustworthy`` says whether the fit can be trusted: a drift far beyond what a unit's LEDs do
 (``MAX_DRIFT``) is not, and is more often a press that covers nearly the whole gel, whose colours the
@@ -53,8 +58,8 @@ VALID = (8.0, 247.0)  # block means outside this are clipped or nearly so, and n
 MIN_CHANGE = 2.5  # grey levels: a fit that moves an image by less, on average, is not applied (align_images)
 # The share of an image's blocks, or of its rim's, that must follow its fit for its no-contact image to be
 # taken for its own unit's. Measured on generated sets of two units (docs/real_sensors.md): against their own
-# unit's no-contact image, at least 18 % of each image or of its rim follows (also under presses over 90 % of
-# the gel); against the other unit's (the paper's DIGIT or TACTO's, also mirrored or turned) at most 4.6 % of
+# unit's no-contact image, at least 18 % of each image or of its rim follows (also on scenes pressed 2-3 mm
+# deep, which leave the gel's corners only); against the other unit's (the paper's DIGIT or TACTO's, also mirrored or turned) at most 4.6 % of
 # the image and 5.8 % of the rim: the joint search finds the combination of lines that the most blocks follow,
 # and against another unit's pattern a few more happen to. The threshold sits between the two, a factor of
 # about 1.7 from each.
@@ -185,7 +190,7 @@ def line_candidates(x: np.ndarray, y: np.ndarray, weights: np.ndarray | None = N
             for v in values[1:]:
                 far |= np.abs(v[left] - v[q]) > TOLERANCE
             left = left[far]
-        if len(kept) == k:
+        if len(kept) == k or pool >= inside.size:
             break
     return lines[kept]
 
