@@ -20,7 +20,8 @@ with), drawn from ``--seed``:
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
 the evaluation scores it; one JSON line per condition: the positional error of the best pose, mean and
 median over scenes (cm), the share of scenes whose best pose is within 2 cm ADI, the ADI-AUC figures
-averaged over objects and the failures. ``--light-fits`` adds how well the light was fitted (``clean`` and
+averaged over objects and the failures; ``--out PREFIX`` also writes each condition's per-scene errors to
+``PREFIX<condition>.npz``, which ``scripts/compare_errors.py`` pairs scene by scene with another run's. ``--light-fits`` adds how well the light was fitted (``clean`` and
 ``light``): over the images, the median and 90th percentile of the fit's error against the drift drawn (none
 for ``clean``), in gain and gamma (the channel farthest off), the share of blocks outside the fit and how many
 images the fit was applied to (``photometric.align_images``, the fits the estimator makes). The test set is looked at after a decision, never to make one:
@@ -95,6 +96,12 @@ def light_fit_row(fits: list, gains: np.ndarray, gammas: np.ndarray) -> dict[str
             "applied": int(sum(bool(f.applied) for f in fits)), "images": len(fits)}
 
 
+def write_errors(path: str, objects: np.ndarray, errors: dict[str, np.ndarray]) -> None:
+    """One condition's per-scene errors (as ``summary_row`` takes them) and objects (S,) to an npz file in
+    the layout of ``eval_accuracy.py --out``, which ``compare_errors.py`` reads."""
+    np.savez(path, objects=np.asarray(objects), **errors)
+
+
 def summary_row(errors: dict[str, np.ndarray], objects: np.ndarray) -> dict[str, float]:
     """The figures of one condition: errors as ``scoring.scene_errors`` gives them, stacked over scenes
     (S, K), objects (S,) -> the best pose's positional error mean and median (cm), the share within
@@ -115,6 +122,8 @@ def main() -> int:
     parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
     parser.add_argument("--seed", type=int, default=0, help="of the perturbations drawn")
     parser.add_argument("--light-fits", action="store_true", help="also how well the light was fitted (module docstring)")
+    parser.add_argument("--out", help="write each condition's per-scene errors to OUT<condition>.npz (as eval_accuracy.py "
+                                      "--out does), for scripts/compare_errors.py")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. preset=paper")
     args = parse_with_overrides(parser)
 
@@ -136,6 +145,8 @@ def main() -> int:
             for key, values in rows.items():
                 values.append(scored.errors[key])
         errors = {key: np.array(v) for key, v in rows.items()}
+        if args.out:
+            write_errors(f"{args.out}{condition}.npz", clean.objects, errors)
         light = {}
         if args.light_fits and condition in ("clean", "light"):
             # The estimator's own fits (select.align_light): each image against its sensor's no-contact image.

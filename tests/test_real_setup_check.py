@@ -8,6 +8,7 @@ from tactile6d.core import geometry as g
 from tactile6d.sim import scenes
 
 check = load_script("real_setup_check")
+compare = load_script("compare_errors")
 
 
 def small_set(n=3, L=3) -> scenes.SceneSet:
@@ -95,3 +96,12 @@ def test_the_light_fits_row_against_a_naive_count():
     assert row["gain_err_median"] == pytest.approx(0.05, abs=1e-4)  # 0.1 and 0.0
     assert row["gamma_err_p90"] == pytest.approx(0.18, abs=1e-4)  # 0.0 and 0.2
     assert row["outliers_mean"] == pytest.approx(0.3) and row["applied"] == 1 and row["images"] == 2
+
+
+def test_the_per_scene_errors_written_are_what_compare_errors_pairs(tmp_path):
+    position = np.array([[0.004, 0.1], [0.03, 0.1], [np.nan, np.nan]])
+    errors = {"position": position, "adi": position, "adi_rotation": position, "contact_ok": np.ones((3, 2), bool)}
+    check.write_errors(str(tmp_path / "base-light.npz"), np.array(["a", "a", "b"]), errors)
+    np.testing.assert_array_equal(compare.best_position_cm(str(tmp_path / "base-light.npz")), [0.4, 3.0, np.nan])
+    with np.load(tmp_path / "base-light.npz") as data:
+        assert data["objects"].tolist() == ["a", "a", "b"]
