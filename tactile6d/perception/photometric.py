@@ -49,6 +49,7 @@ BORDER_WEIGHT = (0.1, 1.0)  # a block's weight in the mode search: 0.1 at the ce
 TIE = 0.98  # exponents whose best count is within 2 % of the best are ties, won by the one nearest 1
 CANDIDATES = 8  # distinct lines per channel whose combinations the joint search scores (8^3 = 512)
 CANDIDATE_POOL = 3000  # the densest windows searched for them first (of about 26 x 1200)
+WEIGHT_QUANTUM = 2.0**-20  # unit of the block weights in the joint search's integer counts
 ITERATIONS = 10  # reweighting rounds
 TUKEY_C = 4.685  # Tukey's biweight constant, in robust standard deviations (95 % efficiency)
 MIN_SCALE = 0.005  # floor of the robust standard deviation of log residuals (half a grey level at 100)
@@ -160,7 +161,9 @@ def line_candidates(x: np.ndarray, y: np.ndarray, weights: np.ndarray | None = N
     larger than any residual's range."""
     w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=np.float64)
     residuals = y[None, :] - EXPONENTS[:, None] * x[None, :]  # (B, n)
-    order = np.argsort(residuals, axis=1)
+    # Stable sorts throughout: equal values keep their order on every CPU (NumPy's default sort may be a SIMD
+    # one that orders ties otherwise), so the sums below add the same weights in the same order.
+    order = np.argsort(residuals, axis=1, kind="stable")
     r = np.take_along_axis(residuals, order, axis=1)
     span = float(r[:, -1].max() - r[:, 0].min()) + 2.0 * TOLERANCE
     flat = (r + span * np.arange(len(EXPONENTS))[:, None]).ravel()
@@ -175,7 +178,10 @@ def line_candidates(x: np.ndarray, y: np.ndarray, weights: np.ndarray | None = N
     # The densest windows, behind the mode. Neighbouring starts and exponents repeat a line, so the next
     # distinct one may lie far down the order: the densest CANDIDATE_POOL first, all of them if too few.
     for pool in (CANDIDATE_POOL, inside.size):
-        top = np.argpartition(-inside, pool - 1, axis=None)[:pool] if pool < inside.size else np.arange(inside.size)
+        if pool < inside.size:  # every window at least as dense as the pool-th densest, in index order
+            top = np.flatnonzero(inside.ravel() >= np.partition(inside.ravel(), inside.size - pool)[inside.size - pool])
+        else:
+            top = np.arange(inside.size)
         top = top[np.argsort(-inside.ravel()[top], kind="stable")]
         rows, starts = np.divmod(top, r.shape[1])
         rows, starts = np.concatenate([[first], rows]), np.concatenate([[best[first]], starts])
@@ -210,10 +216,15 @@ def joint_lines(x: np.ndarray, y: np.ndarray, candidates: list[np.ndarray], weig
     (a, b) (``line_candidates``); weights: (n,) each block's count. Returns (C, 2). An untouched block
     follows the light's line in all three channels at once; a pressed one may fall on some line in one
     channel, seldom on the same wrong combination in all three. Ties go to the earlier candidates."""
-    masks = [(np.abs(y[:, c][None, :] - lines[:, :1] - lines[:, 1:] * x[:, c][None, :]) <= TOLERANCE / 2.0).astype(np.float64)
+    # Counted in integers (weights in units of WEIGHT_QUANTUM): a float sum's order, and so its last bits and
+    # which of two equal counts wins, would follow the BLAS kernel of the CPU (AVX2 or AVX-512).
+    w = np.rint(np.asarray(weights, dtype=np.float64) / WEIGHT_QUANTUM).astype(np.int64)
+    masks = [(np.abs(y[:, c][None, :] - lines[:, :1] - lines[:, 1:] * x[:, c][None, :]) <= TOLERANCE / 2.0).astype(np.int64)
              for c, lines in enumerate(candidates)]  # C arrays (m_c, n)
-    subscripts = ",".join(f"{chr(105 + c)}n" for c in range(len(masks))) + ",n->" + "".join(chr(105 + c) for c in range(len(masks)))
-    count = np.einsum(subscripts, *masks, weights, optimize=True)
+    follows = masks[0]  # (m_0 * ... * m_c, n): whether each block follows each combination of the channels so far
+    for mask in masks[1:-1]:
+        follows = (follows[:, None, :] * mask[None, :, :]).reshape(-1, mask.shape[1])
+    count = (follows @ (masks[-1] * w).T).reshape([len(m) for m in masks])
     choice = np.unravel_index(int(np.argmax(count)), count.shape)
     return np.stack([lines[i] for lines, i in zip(candidates, choice)])
 
