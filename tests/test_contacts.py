@@ -327,7 +327,14 @@ def test_drifted_light_is_aligned_before_the_images_are_read(rendered):
     as_given = make_estimator(rendered, **patch_contacts, **{"select.align_light": False}).estimate(T, drifted)
     assert as_given.light is None and len(aligned.light) == 3
     assert all(fit.trustworthy for fit in aligned.light)
-    assert aligned.to_dict()["light"][1]["gamma"][0] == pytest.approx(1.2, abs=0.1)
+    # Each image's fit, as reported, undoes its sensor's drift: the no-contact image drifted so and mapped back
+    # is within a grey level on average (measured 0.36-0.69; gain and gamma themselves trade off over a
+    # channel's narrow range of values, 0.84 and 1.10 fitted for 0.9 and 1.2 in image 1's red).
+    for fit, reported, gain, gamma in zip(aligned.light, aligned.to_dict()["light"], gains, gammas):
+        assert reported["gamma"] == fit.gamma.round(4).tolist()
+        drifted_no_contact = perturb.drift_image_light(rendered["no_contact"], gain, gamma)
+        back = photometric.apply_light(drifted_no_contact, fit).astype(int) - rendered["no_contact"]
+        assert np.abs(back).mean() < 1.0
     moved = np.linalg.norm(aligned.contacts.points - clean.contacts.points, axis=1)
     moved_as_given = np.linalg.norm(as_given.contacts.points - clean.contacts.points, axis=1)
     assert moved.max() < 0.001 < moved_as_given.max()
