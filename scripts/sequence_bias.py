@@ -74,16 +74,19 @@ def mean_motion(motions: np.ndarray) -> np.ndarray:
 
 def data_terms(scored: rank_step.RefinedScores, rank, sensors) -> np.ndarray:
     """(P,) m: the score less the corrections' cost: surface fit, penetration and render-and-compare."""
-    return (scored.losses + rank_step.penetration_cost(scored.depths, sensors.contact_sigma)
-            + rank.agreement_weight * scored.agreement)
+    from oracle_corrections import TERMS, score_terms  # scripts/, this script's folder
+
+    data = [i for i, term in enumerate(TERMS) if term != "corrections"]
+    return score_terms(scored, rank, sensors)[:, data].sum(axis=1)
 
 
 class Sequence:
     """The frames ``frames`` of one sequence as the estimator reads them: the sensor poses as reported T
-    (F, L, 4, 4) and each frame's contacts through them (images (F, L, 320, 240, 3))."""
+    (F, L, 4, 4) and each frame's contacts through them (images (F, L, 320, 240, 3)); scored with the
+    tracker's ``iterations`` refinement steps."""
 
-    def __init__(self, estimator: Estimator, T: np.ndarray, images: np.ndarray, frames: list[int]):
-        self.estimator, self.T, self.frames = estimator, T, frames
+    def __init__(self, estimator: Estimator, T: np.ndarray, images: np.ndarray, frames: list[int], iterations: int):
+        self.estimator, self.T, self.frames, self.iterations = estimator, T, frames, iterations
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             self.contacts = {f: estimator.contacts(T[f], images[f]) for f in frames}
@@ -96,7 +99,7 @@ class Sequence:
             T = self.T[f] @ correction
             scored = rank_step.refine_and_score(est.penetration_model, est.surface, est.mesh, poses[f][None], T,
                                                 contacts_through(self.contacts[f], self.T[f], T), est.settings.rank,
-                                                sensors, 4)
+                                                sensors, self.iterations)
             scores.append(scored.scores[0])
             data.append(data_terms(scored, est.settings.rank, sensors)[0])
         return float(np.mean(scores)), float(np.mean(data))
@@ -110,6 +113,7 @@ class Sequence:
             implied = []
             for f in self.frames:
                 T = self.T[f] @ bias
+                # rank.refine_and_score's refinement, written out: it does not return the corrections (seen).
                 fit, touched, on = rank_step.touching_fit(est.surface, contacts_through(self.contacts[f], self.T[f], T), rank)
                 points, owners = touched.patch_points(T[on], int(rank.refine_patch_points))
                 weights = rank_step._per_sensor_weights(owners, len(on), float(rank.refine_patch_weight))
@@ -159,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     frames = list(range(0, len(T), args.every))
-    sequence = Sequence(estimator, T, images, frames)
+    sequence = Sequence(estimator, T, images, frames, int(cfg.track.refine_iterations))
     declared = estimator.settings.sensors
     tight = replace(declared, pose_sigma_mm=args.tight, pose_sigma_deg=args.tight)
     loose = replace(declared, pose_sigma_mm=args.loose * declared.pose_sigma_mm,
