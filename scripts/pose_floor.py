@@ -50,6 +50,7 @@ from tactile6d.estimation.optimize import weighted_kabsch  # noqa: E402
 from tactile6d.evaluation.kinematic_bound import true_sensor_poses  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
+from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
 
 
 def position_cm(T: np.ndarray, truth: np.ndarray) -> float:
@@ -182,4 +183,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    run_pinned()  # figures that repeat on every CPU, as the stages' do
     sys.exit(main())

@@ -37,6 +37,7 @@ from tactile6d.evaluation import symmetry  # noqa: E402
 from tactile6d.perception.contacts import UntouchedSensorWarning  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
+from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
 
 
 def rotation_deg(D: np.ndarray) -> float:
@@ -146,4 +147,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    run_pinned()  # figures that repeat on every CPU, as the stages' do
     sys.exit(main())

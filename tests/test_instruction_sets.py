@@ -77,6 +77,50 @@ def test_exports_print_every_pinned_variable():
     assert [line.split("=")[0] for line in lines] == [f"export {name}" for name in isa.PINNED_VARIABLES]
 
 
+def test_run_pinned_starts_an_unpinned_command_again_pinned(tmp_path):
+    """A script that imported NumPy before it could pin calls run_pinned() first in main(): it is started again
+    with every cap, its arguments and the interpreter's own flags kept; an already pinned one runs once."""
+    script = tmp_path / "show_env.py"
+    script.write_text(
+        "import sys, json, os\n"
+        "import numpy\n"  # loaded before the pin could take effect, as in the diagnostic scripts
+        f"sys.path.insert(0, {str(HERE.parent)!r})\n"
+        "from tactile6d.runtime.instruction_sets import PINNED_VARIABLES, run_pinned\n"
+        "print('started', flush=True)\n"
+        "run_pinned()\n"
+        "print(json.dumps({'argv': sys.argv[1:], 'optimize': sys.flags.optimize,\n"
+        "                  'env': {name: os.environ.get(name) for name in PINNED_VARIABLES}}))\n")
+    bare = {key: value for key, value in os.environ.items() if key not in isa.PINNED_VARIABLES}
+    out = subprocess.run([sys.executable, "-O", str(script), "a", "--b"], env=bare,
+                         capture_output=True, text=True, check=True).stdout.splitlines()
+    assert out[:2] == ["started", "started"]  # once unpinned, once again pinned
+    seen = json.loads(out[2])
+    assert seen["argv"] == ["a", "--b"] and seen["optimize"] == 1
+    assert seen["env"] == {name: isa.pinned_environment(bare)[name] for name in isa.PINNED_VARIABLES}
+    out = subprocess.run([sys.executable, str(script)], env=isa.pinned_environment(bare),
+                         capture_output=True, text=True, check=True).stdout.splitlines()
+    assert out[0] == "started" and len(out) == 2
+
+
+# Scripts that set each child's environment themselves (pinned, and on purpose unpinned or disguised).
+SETS_ITS_CHILDREN = {"cpu_digests.py", "render_reproducibility.py"}
+
+
+def test_every_script_that_computes_with_the_library_runs_pinned():
+    """A diagnostic script's figures are quoted in docs/ and must repeat on every CPU, as the stages' outputs do:
+    each script that imports the library's numerical packages starts itself again pinned before main()."""
+    unpinned = []
+    for path in sorted((HERE.parent / "scripts").glob("*.py")):
+        source = path.read_text()
+        numerical = any(f"from tactile6d.{package}" in source
+                        for package in ("estimation", "evaluation", "perception", "sim"))
+        if numerical and path.name not in SETS_ITS_CHILDREN:
+            main_block = source.split('if __name__ == "__main__":', 1)[-1]
+            if main_block.find("run_pinned()") == -1 or main_block.find("run_pinned()") > main_block.find("main()"):
+                unpinned.append(path.name)
+    assert unpinned == []
+
+
 def _child(extra: dict[str, str], after_pin: dict[str, str] | None = None) -> dict:
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     env.update(extra)
