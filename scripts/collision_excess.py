@@ -26,7 +26,7 @@ from tactile6d.core.config import compose_config  # noqa: E402
 from tactile6d.data.object_artifacts import load_collision_vertices, load_mesh  # noqa: E402
 from tactile6d.estimation.collision import ConvexPieces, vertices_to_pieces  # noqa: E402
 from tactile6d.sim.surface_sampling import sample_surface  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def points_to_piece_depth(points: np.ndarray, pieces: ConvexPieces) -> np.ndarray:

@@ -34,7 +34,7 @@ from tactile6d.evaluation.metric_table import ERROR_KEYS
 from tactile6d.evaluation.sensor_subsets import estimate_and_score
 from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import scenes, surface_sampling
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def proxy_scenes(artifacts: str, objects: list[str], per_object: int, seed: int) -> dict:

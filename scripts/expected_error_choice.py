@@ -30,7 +30,7 @@ from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def expected_error_choice(translations: np.ndarray, scores: np.ndarray, tau: float) -> int:

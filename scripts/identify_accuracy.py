@@ -26,7 +26,7 @@ from tactile6d.estimation.identifier import Identifier
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.evaluation import scoring
 from tactile6d.evaluation.identification_accuracy import identify_scene_set
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def main() -> int:

@@ -27,7 +27,7 @@ from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.evaluation.kinematic_bound import scene_bound, true_sensor_poses  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def summary(values_m: list[float]) -> str:

@@ -33,7 +33,7 @@ from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.evaluation import scoring  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 GROUPS = ("all touching", "some not touching")
 

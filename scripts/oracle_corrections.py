@@ -40,7 +40,7 @@ from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.evaluation.kinematic_bound import seen_through_true_errors, true_sensor_poses  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 TERMS = ("surface", "penetration", "corrections", "render-and-compare")
 

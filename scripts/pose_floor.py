@@ -50,7 +50,7 @@ from tactile6d.estimation.optimize import weighted_kabsch  # noqa: E402
 from tactile6d.evaluation.kinematic_bound import true_sensor_poses  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def position_cm(T: np.ndarray, truth: np.ndarray) -> float:

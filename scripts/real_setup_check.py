@@ -52,7 +52,7 @@ from tactile6d.evaluation.sensor_subsets import estimate_and_score
 from tactile6d.perception import photometric
 from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 CONDITIONS = ("clean", "noise", "light", "kinematic")
 NOISE_STD = 2.0  # grey levels

@@ -34,7 +34,7 @@ from tactile6d.data.hdf5 import read_artifact
 from tactile6d.estimation.identifier import Identifier
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.runtime.script_args import parse_with_overrides
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 FIELDS = ("tuples", "errors", "delta_d", "capped")
 

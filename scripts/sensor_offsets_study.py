@@ -54,7 +54,7 @@ from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.estimation.sensor_offsets import (KnownGrasp, apply_sensor_offsets, fit_sensor_offsets,  # noqa: E402
                                                  gel_centre_shifts)
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def draw_errors(shape: tuple[int, ...], sigma_m: float, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:

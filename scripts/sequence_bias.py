@@ -47,7 +47,7 @@ from tactile6d.estimation.optimize import use_cpu_devices_for  # noqa: E402
 from tactile6d.estimation.tracker import Tracker, TrackSettings  # noqa: E402
 from tactile6d.perception.contacts import Contacts  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def contacts_through(contacts: Contacts, T_from: np.ndarray, T_to: np.ndarray) -> Contacts:

@@ -46,7 +46,7 @@ from tactile6d.evaluation import scoring  # noqa: E402
 from tactile6d.evaluation import tracking_accuracy as accuracy  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 _BOX_RADIUS = float(np.linalg.norm(BOX_HALF_EXTENTS))
 

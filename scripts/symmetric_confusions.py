@@ -37,7 +37,7 @@ from tactile6d.evaluation import symmetry  # noqa: E402
 from tactile6d.perception.contacts import UntouchedSensorWarning  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.scenes import scene_backgrounds  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def rotation_deg(D: np.ndarray) -> float:

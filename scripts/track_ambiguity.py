@@ -43,7 +43,7 @@ from tactile6d.estimation.tracker import Tracker, TrackSettings  # noqa: E402
 from tactile6d.evaluation.tracking_accuracy import track_frames, true_runs  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.render import DigitRenderer, load_background_bgr, mesh_arrays  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def press_agreement(renderer: DigitRenderer, arrays, T_object: np.ndarray, T_sensors: np.ndarray,

@@ -41,7 +41,7 @@ from tactile6d.estimation.optimize import use_cpu_devices_for  # noqa: E402
 from tactile6d.estimation.tracker import Tracker, TrackSettings  # noqa: E402
 from tactile6d.evaluation import scoring  # noqa: E402
 from tactile6d.evaluation.tracking_accuracy import pose_errors  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 FEATURES = ("confidence", "rival_gap", "spread_cm", "evidence_mm", "residual_mm", "agreement", "penetration_mm",
             "hypotheses", "frames_since")

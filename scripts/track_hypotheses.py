@@ -27,7 +27,7 @@ from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.estimation.optimize import use_cpu_devices_for  # noqa: E402
 from tactile6d.estimation.tracker import Tracker, TrackSettings  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def position_cm(pose: np.ndarray, truth: np.ndarray) -> float:

@@ -38,7 +38,7 @@ from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.evaluation import scoring  # noqa: E402
 from tactile6d.perception.encode import load_background  # noqa: E402
 from tactile6d.sim.perturb import add_camera_noise, drift_image_light  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def lift_sensor(T_world_sensors: np.ndarray, images: np.ndarray, sensor: int, normal: np.ndarray, distance: float,

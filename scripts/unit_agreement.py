@@ -32,7 +32,7 @@ from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.perception.encode import load_background  # noqa: E402
 from tactile6d.perception.photometric import background_from_images, fit_light  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 TURNS = {"": lambda b: b, ", mirrored left-right": lambda b: b[:, ::-1], ", mirrored up-down": lambda b: b[::-1],
          ", turned half a turn": lambda b: b[::-1, ::-1]}

@@ -32,7 +32,7 @@ from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.perception.photometric import background_from_images  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.render import DigitRenderer, load_background_bgr  # noqa: E402
-from tactile6d.runtime.instruction_sets import run_pinned  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -78,14 +78,15 @@ def test_exports_print_every_pinned_variable():
 
 
 def test_run_pinned_starts_an_unpinned_command_again_pinned(tmp_path):
-    """A script that imported NumPy before it could pin calls run_pinned() first in main(): it is started again
+    """A script that imported NumPy before it could pin calls run_pinned() before main(): it is started again
     with every cap, its arguments and the interpreter's own flags kept; an already pinned one runs once."""
     script = tmp_path / "show_env.py"
     script.write_text(
         "import sys, json, os\n"
         "import numpy\n"  # loaded before the pin could take effect, as in the diagnostic scripts
         f"sys.path.insert(0, {str(HERE.parent)!r})\n"
-        "from tactile6d.runtime.instruction_sets import PINNED_VARIABLES, run_pinned\n"
+        "from tactile6d.runtime.instruction_sets import PINNED_VARIABLES\n"
+        "from tactile6d.runtime.pinned_process import run_pinned\n"
         "print('started', flush=True)\n"
         "run_pinned()\n"
         "print(json.dumps({'argv': sys.argv[1:], 'optimize': sys.flags.optimize,\n"

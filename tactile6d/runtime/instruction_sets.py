@@ -12,8 +12,7 @@ onto AVX2 bit for bit, and those of this process disguised as another CPU (AMD Z
 AVX-512 and with other cache sizes: ``scripts/cpu_disguise.py``).
 
 The variables take effect only when set before the libraries are imported, so ``pin()`` runs first in
-every stage (``stages/__init__.py``) and is inherited by their worker processes; the diagnostic scripts, which
-import NumPy first, start themselves again pinned (``run_pinned``); Dask workers on other
+every stage (``stages/__init__.py``) and is inherited by their worker processes; Dask workers on other
 machines need the same environment (``python -m tactile6d.runtime.instruction_sets`` prints it as shell
 ``export`` lines). Nothing here lowers a setting the environment already has: a lower code path stays.
 This module must import nothing heavy (it runs before NumPy).
@@ -82,23 +81,6 @@ def pin(environ: os._Environ | dict | None = None) -> list[str]:
     target = os.environ if environ is None else environ
     target.update(pinned_environment(target))
     return []
-
-
-def run_pinned() -> None:
-    """Make sure this process runs pinned: when its environment lacks a cap, start it again with the caps.
-
-    For a command whose figures should repeat on every machine but which imports the libraries before it
-    could call ``pin()`` (the diagnostic scripts of scripts/: they import NumPy at the top). Called first under
-    ``if __name__ == "__main__":``, not in ``main()`` (a test calling ``main()`` would be replaced): it replaces the process (``os.execve``, same interpreter and command line, ``sys.orig_argv``) with one whose
-    environment is ``pinned_environment(os.environ)``; in that process, or where the environment is already
-    pinned (a stage, a shell that exported ``python -m tactile6d.runtime.instruction_sets``), it returns at once.
-    """
-    pinned = pinned_environment(os.environ)
-    if all(os.environ.get(name) == pinned[name] for name in PINNED_VARIABLES):
-        return
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os.execve(sys.executable, list(sys.orig_argv), pinned)
 
 
 def exports(environ: Mapping[str, str]) -> str:
