@@ -107,7 +107,10 @@ def test_a_sequence_is_tracked_within_5_mm(world, tracked):
     """Measured on this sequence: the tracked centre is 0.4-1.2 mm from the true one on every frame (single-shot
     estimates of every third frame: 0.7-3.4 mm). 5 mm leaves room for the tracker's tuning and still catches a
     track that drifts along the surface: on other grasps of this ellipsoid (other seeds) the updates drift 7-11 mm
-    away while the single-shot estimates of their re-detected frames stay within 1.5-4.3 mm."""
+    away while the single-shot estimates of their re-detected frames stay within 1.5-4.3 mm. That drift is each
+    frame's own optimum under the sensor-pose error the estimator allows (the default 1.5 mm and 1.5 deg, against
+    SPEC's 0.5): declared as SPEC's, seed 9's first sequence is followed at 0.7 mm median against 5.8
+    (docs/journal.md, 2026-12-06)."""
     frames, last = tracked
     seqs = world["seqs"]
     assert frames[0].mode == "redetect" and frames[0].reason == "start" and frames[0].fit_ok
