@@ -183,6 +183,17 @@ def test_a_bag_in_a_bop_csv_and_a_pose_bag_out(artifacts, recording, from_sequen
         np.testing.assert_allclose([float(v) for v in t_text.split()], 1000.0 * poses[k][:3, 3], rtol=1e-15)  # mm
 
 
+def test_the_track_is_drawn_with_plot(capsys, artifacts, recording, tmp_path):
+    png = tmp_path / "track.png"
+    code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(recording["sequence"]), "--artifacts",
+                         str(artifacts), "--plot", str(png), *BASELINE)
+    assert code == 0, err
+    assert len(out.splitlines()) == F  # the lines as without it
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")) == (750, 620)
+
+
 def test_fixed_sensor_poses_from_a_file(artifacts, recording):
     """A bag of frame 0 three times: its sensor poses from a file (--poses) or from TF (--frames) give the same
     track, whose first frame is the sequence's first."""

@@ -22,7 +22,9 @@ JSON object per frame (pose as a 4x4 matrix, mode, the re-detection's reason, co
 ambiguous, which sensors touch, the fit terms, seconds). ``--bop FILE`` also writes a BOP result CSV
 (``scene_id`` from ``--scene-id``, ``im_id`` the frame, ``obj_id`` the object's YCB-Video id or ``--obj-id``,
 score the confidence, t in mm, time the frame's seconds); ``--out-bag PATH`` writes the poses as
-``geometry_msgs/PoseStamped`` (``--out-topic``). Frames without a pose yet are left out of both.
+``geometry_msgs/PoseStamped`` (``--out-topic``). Frames without a pose yet are left out of both. ``--plot PNG``
+draws the track over time (``tactile6d.evaluation.stream_figure``): the position and turn from the first pose, the
+re-detections, held and ambiguous frames, the sensors touching and the confidence.
 
 A summary goes to stderr at the end (frames, re-detections, held and ambiguous frames, median seconds per
 updated frame).
@@ -91,6 +93,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--obj-id", type=int, default=None, help="BOP obj_id (default: the YCB-Video id of --object)")
     parser.add_argument("--out-bag", metavar="PATH", help="also write the poses as geometry_msgs/PoseStamped")
     parser.add_argument("--out-topic", default=rosbag_io.POSE_TOPIC, help="topic of --out-bag's poses")
+    parser.add_argument("--plot", metavar="PNG", help="also draw the track over time: position and turn from the "
+                        "first pose, re-detections, held and ambiguous frames, sensors touching, confidence")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (e.g. track.redetect_every=30)")
     args = parser.parse_args(argv)
     for name in ("images", "frames"):  # greedy lists may have swallowed overrides
@@ -164,6 +168,7 @@ def main(argv: list[str]) -> int:
     cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args))
     estimator = cache.load(args.object)
     stamps, poses, rows, seconds, modes, ambiguous = [], [], [], [], [], 0
+    drawn: dict[str, list] = {"times": [], "poses": [], "confidence": [], "ambiguous": [], "touching": []}  # --plot
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
         warnings.simplefilter("once", UnderdeterminedPoseWarning)
@@ -182,6 +187,11 @@ def main(argv: list[str]) -> int:
                 write(frame_line(index, stamp, answer), sys.stdout)
             seconds.append(answer.seconds)
             modes.append(answer.mode)
+            drawn["times"].append(index / args.fps if stamp is None else stamp)
+            drawn["poses"].append(answer.pose)
+            drawn["confidence"].append(np.nan if answer.confidence is None else answer.confidence)
+            drawn["ambiguous"].append(answer.ambiguous)
+            drawn["touching"].append(int(np.count_nonzero(answer.touching)))
             ambiguous += int(answer.ambiguous)
             if np.isfinite(answer.pose).all():
                 stamps.append(index / args.fps if stamp is None else stamp)
@@ -197,6 +207,12 @@ def main(argv: list[str]) -> int:
     if args.out_bag is not None:
         rosbag_io.write_pose_bag(args.out_bag, np.array(stamps), np.array(poses).reshape(-1, 4, 4),
                                  args.world_frame, args.out_topic)
+    if args.plot is not None:
+        from tactile6d.evaluation.stream_figure import stream_figure  # matplotlib: only when drawing
+
+        figure = stream_figure(np.array(drawn["times"]), np.array(drawn["poses"]), modes, np.array(drawn["confidence"]),
+                               np.array(drawn["ambiguous"]), np.array(drawn["touching"]), args.object)
+        figure.savefig(args.plot, dpi=100)
     updates = [s for s, m in zip(seconds, modes) if m == "update"]
     median = f"{1e3 * np.median(updates):.1f} ms" if updates else "-"
     write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held, {ambiguous} "
