@@ -208,11 +208,14 @@ def main(argv: list[str]) -> int:
         rosbag_io.write_pose_bag(args.out_bag, np.array(stamps), np.array(poses).reshape(-1, 4, 4),
                                  args.world_frame, args.out_topic)
     if args.plot is not None:
-        from tactile6d.evaluation.stream_figure import stream_figure  # matplotlib: only when drawing
+        import matplotlib.pyplot as plt  # matplotlib: only when drawing
+
+        from tactile6d.evaluation.stream_figure import stream_figure
 
         figure = stream_figure(np.array(drawn["times"]), np.array(drawn["poses"]), modes, np.array(drawn["confidence"]),
                                np.array(drawn["ambiguous"]), np.array(drawn["touching"]), args.object)
         figure.savefig(args.plot, dpi=100)
+        plt.close(figure)
     updates = [s for s, m in zip(seconds, modes) if m == "update"]
     median = f"{1e3 * np.median(updates):.1f} ms" if updates else "-"
     write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held, {ambiguous} "

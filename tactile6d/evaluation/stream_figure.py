@@ -51,7 +51,7 @@ def stream_figure(times: np.ndarray, poses: np.ndarray, modes: list[str], confid
     position.legend(fontsize=7, loc="best", ncol=3)
     turn.plot(times, np.degrees(turns), color="0.2", lw=1.2)
     turn.set_ylabel("turn from the\nfirst pose (deg)")
-    trust.step(times, touching, where="mid", color="tab:purple", lw=1.2, label="sensors touching")
+    trust.step(times, touching, where="mid", color="tab:purple", lw=1.2)
     trust.set_ylabel("sensors touching")
     trust.set_ylim(-0.2, max(3, int(np.max(touching, initial=0))) + 0.4)
     trust.set_xlabel("time (s)")
