@@ -152,10 +152,10 @@ def parse_lock(text: str, path, parse_yaml) -> Any:
                     and len(value["stages"]) == 1):
                 return parse_yaml(text, path)
             cached = _ENTRY_VALUES[entry] = pickle.dumps(value["stages"], protocol=5)
-        one = pickle.loads(cached)
-        if set(one) & set(stages):
+        ((name, value),) = pickle.loads(cached).items()
+        if name in stages:
             return parse_yaml(text, path)  # a name twice: the whole file's loader says what that means
-        stages.update(one)
+        stages[name] = value
     data["stages"] = stages
     return data
 

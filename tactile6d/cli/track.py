@@ -167,7 +167,7 @@ def main(argv: list[str]) -> int:
     background = read_background_images(args.background) if args.background else None
     cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args))
     estimator = cache.load(args.object)
-    stamps, poses, rows, seconds, modes, ambiguous = [], [], [], [], [], 0
+    stamps, poses, rows, seconds, modes = [], [], [], [], []
     drawn: dict[str, list] = {"times": [], "poses": [], "confidence": [], "ambiguous": [], "touching": []}  # --plot
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
@@ -187,14 +187,14 @@ def main(argv: list[str]) -> int:
                 write(frame_line(index, stamp, answer), sys.stdout)
             seconds.append(answer.seconds)
             modes.append(answer.mode)
-            drawn["times"].append(index / args.fps if stamp is None else stamp)
+            time = index / args.fps if stamp is None else stamp
+            drawn["times"].append(time)
             drawn["poses"].append(answer.pose)
             drawn["confidence"].append(np.nan if answer.confidence is None else answer.confidence)
             drawn["ambiguous"].append(answer.ambiguous)
             drawn["touching"].append(int(np.count_nonzero(answer.touching)))
-            ambiguous += int(answer.ambiguous)
             if np.isfinite(answer.pose).all():
-                stamps.append(index / args.fps if stamp is None else stamp)
+                stamps.append(time)
                 poses.append(answer.pose)
                 score = 1.0 if answer.confidence is None else answer.confidence
                 rows.append(bop.BopRow(args.scene_id, index, args.obj_id or 0, score, answer.pose, answer.seconds))
@@ -218,6 +218,6 @@ def main(argv: list[str]) -> int:
         plt.close(figure)
     updates = [s for s, m in zip(seconds, modes) if m == "update"]
     median = f"{1e3 * np.median(updates):.1f} ms" if updates else "-"
-    write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held, {ambiguous} "
-          f"ambiguous; median update {median}", sys.stderr)
+    write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held, "
+          f"{sum(drawn['ambiguous'])} ambiguous; median update {median}", sys.stderr)
     return 0
