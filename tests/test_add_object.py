@@ -24,6 +24,7 @@ def checkout(tmp_path):
     return repo
 
 
+@pytest.mark.slow
 def test_the_entry_is_added_with_the_header_kept_and_params_refreshed(checkout, capsys):
     before = (checkout / add_object.OWN_FILE).read_text()
     header = "".join(line for line in before.splitlines(keepends=True) if line.startswith("#"))
@@ -46,6 +47,7 @@ def test_the_entry_is_added_with_the_header_kept_and_params_refreshed(checkout, 
     assert own_objects(compose_config(conf_dir=checkout / "conf"))["bunny"].scale == 4.0
 
 
+@pytest.mark.slow
 def test_a_mesh_inside_the_checkout_is_stored_relative_to_it(checkout):
     (checkout / "meshes").mkdir()
     shutil.copy(BUNNY, checkout / "meshes" / "bunny.obj")

@@ -58,6 +58,7 @@ def test_cpu_preset_shapes():
     assert model.decode(h).shape == x.shape
 
 
+@pytest.mark.slow
 def test_paper_preset_shapes():
     cfg = OmegaConf.load(CONF / "paper.yaml")
     model = ae.build_model(cfg)
@@ -103,6 +104,7 @@ def test_resized_difference_in_chunks_equals_the_whole_batch_at_once(per_image):
     np.testing.assert_allclose(got.numpy(), naive, rtol=1e-6, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_peak_normalisation_removes_the_press_depth_but_not_the_noise_floor():
     diffs = torch.zeros(3, 3, 8, 6)
     diffs[0, :, 2:4, 2:4] = 10.0          # colour-summed peak 30
@@ -159,6 +161,7 @@ def test_bootstrapped_l2_is_mean_of_largest_quarter():
     assert float(ae.bootstrapped_l2(recon, target, 1.0)) == pytest.approx(30 / 8)
 
 
+@pytest.mark.slow
 def test_training_reduces_the_loss(small_set):
     bg, imgs = small_set
     cfg = small_cfg(epochs=8, batch_size=8, channels=[8, 16, 16, 32])
@@ -184,6 +187,7 @@ def test_same_seed_same_weights_and_global_state_restored(small_set):
     assert not torch.are_deterministic_algorithms_enabled()
 
 
+@pytest.mark.slow
 def test_encode_is_deterministic_and_background_is_its_own_reference(small_set):
     bg, imgs = small_set
     torch.manual_seed(0)
@@ -234,6 +238,7 @@ def test_the_offset_turns_the_no_contact_image_into_a_uniform_nonzero_input():
     assert float(contact.abs().sum(dim=0).max()) == pytest.approx(2.0, rel=1e-5)  # unit peak / scale 0.5
 
 
+@pytest.mark.slow
 def test_checkpoint_round_trip(tmp_path, small_set):
     bg, imgs = small_set
     cfg = small_cfg()
@@ -297,6 +302,7 @@ def test_angle_ranking_loss_matches_a_naive_pair_loop():
     assert float(ae.angle_ranking_loss(cos, torch.ones(12, dtype=torch.int64), 0.3)) == 0.0
 
 
+@pytest.mark.slow
 def test_the_ranking_term_puts_sharp_contacts_closer_to_no_contact(small_set):
     """Label the small blobs sharp and the large ones flat: with the ranking term the small blobs' angles
     end up below the large ones' on the training images."""

@@ -99,6 +99,7 @@ def gel_shift_axes(error: np.ndarray) -> np.ndarray:
     return np.einsum("lab,b->la", error[:, :3, :3], GEL_CENTER) + error[:, :3, 3] - GEL_CENTER
 
 
+@pytest.mark.slow
 def test_the_offsets_take_out_each_sensors_bias_along_its_axis(hand, calibrated):
     assert calibrated["code"] == 0, calibrated["err"]
     offsets = SensorOffsets.read(calibrated["file"])
@@ -117,6 +118,7 @@ def test_the_offsets_take_out_each_sensors_bias_along_its_axis(hand, calibrated)
     assert json.loads(calibrated["file"].read_text())["notes"]["object"] == OBJECT
 
 
+@pytest.mark.slow
 def test_estimate_and_track_read_the_corrected_poses(capsys, hand, calibrated, tmp_path):
     offsets = SensorOffsets.read(calibrated["file"])
     scene = hand["folders"][GRASPS]
@@ -155,6 +157,7 @@ def test_estimate_and_track_read_the_corrected_poses(capsys, hand, calibrated, t
     np.testing.assert_allclose(poses[0], poses[1], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_one_known_pose_for_every_grasp(capsys, hand, tmp_path):
     """A fixture holds the object where it always is: --object-pose gives it once, object_pose.txt not needed."""
     folders = []
@@ -177,6 +180,7 @@ def test_one_known_pose_for_every_grasp(capsys, hand, tmp_path):
 
 
 @pytest.mark.parametrize("content, message", [("1 2 3", "expected 7 numbers"), ("", "expected one")])
+@pytest.mark.slow
 def test_a_bad_object_pose_file_is_named(capsys, hand, tmp_path, content, message):
     pose_file = tmp_path / "fixture.txt"
     pose_file.write_text(content)
@@ -185,6 +189,7 @@ def test_a_bad_object_pose_file_is_named(capsys, hand, tmp_path, content, messag
     assert code == 2 and str(pose_file) in err and message in err
 
 
+@pytest.mark.slow
 def test_offsets_that_do_not_fit_the_scene_are_errors(capsys, hand, calibrated, tmp_path):
     common = ["estimate", "--object", OBJECT, "--artifacts", str(hand["artifacts"]), *QUICK]
     bad = tmp_path / "bad.json"
@@ -199,12 +204,14 @@ def test_offsets_that_do_not_fit_the_scene_are_errors(capsys, hand, calibrated, 
     assert code == 2 and "offsets for 2 sensors" in err
 
 
+@pytest.mark.slow
 def test_no_prior_is_an_error(capsys, hand):
     code, _, err = run(capsys, "calibrate-sensors", "--object", OBJECT, "--scene", str(hand["folders"][0]),
                        "--artifacts", str(hand["artifacts"]), "sensors.pose_sigma_mm=0", "sensors.pose_sigma_deg=0")
     assert code == 2 and "pose_sigma" in err
 
 
+@pytest.mark.slow
 def test_no_contact_images_estimated_from_the_grasps(capsys, hand, tmp_path):
     """``--background from-scenes`` as for ``estimate``: each sensor's no-contact image from its images in the grasps
     given (said on stderr), winning over the folders' own."""

@@ -17,6 +17,7 @@ def run_python(code: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize("module", sorted(COMMANDS.values()))
+@pytest.mark.slow
 def test_a_command_module_imports_without_the_heavy_libraries(module):
     done = run_python(f"import sys, tactile6d.cli.{module}; "
                       f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))")
@@ -25,6 +26,7 @@ def test_a_command_module_imports_without_the_heavy_libraries(module):
 
 
 @pytest.mark.parametrize("words", sorted(COMMANDS))
+@pytest.mark.slow
 def test_help_prints_the_options_without_loading_them(words):
     done = run_python("import sys; from tactile6d.cli import main\n"
                       "try:\n"
@@ -37,6 +39,7 @@ def test_help_prints_the_options_without_loading_them(words):
     assert done.stdout.strip().splitlines()[-1] == "LOADED", done.stdout.splitlines()[-1]
 
 
+@pytest.mark.slow
 def test_a_bad_option_is_refused_without_loading_them():
     done = run_python("import sys; from tactile6d.cli import main\n"
                       "try:\n"

@@ -55,6 +55,7 @@ def _sat_depth(R, t, half_a, half_b):
     return max(min(overlaps), 0.0)
 
 
+@pytest.mark.slow
 def test_depth_matches_the_separating_axis_answer_for_rotated_boxes():
     rng = np.random.default_rng(4)
     model = _cube_model()
@@ -153,6 +154,7 @@ def test_penetrating_pose_ranks_below_a_touching_one():
     np.testing.assert_array_equal(allowed.penetrations, ranked.penetrations[::-1])
 
 
+@pytest.mark.slow
 def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
     from tactile6d.core.config import compose_config
     from tactile6d.core.sensor import GEL_CENTER
@@ -168,6 +170,7 @@ def test_the_penetration_allowance_follows_the_sensor_pose_sigmas():
     np.testing.assert_allclose(rk.penetration_cost(np.array([[0.001, 0.003], [0.0, 0.0005]]), 0.002), [0.001, 0.0])
 
 
+@pytest.mark.slow
 def test_the_sensor_pose_sigmas_switch_the_sensor_corrections():
     from tactile6d.core.config import compose_config
     from tactile6d.core.settings import Settings
@@ -203,6 +206,7 @@ def rank_poses_brute_force(poses, losses, penetrations, top_k, tol_translation, 
     return rk.RankedPoses(poses[kept], scores[kept], losses[kept], depths[kept], np.asarray(kept, dtype=np.int64),
                           len(poses))
 
+@pytest.mark.slow
 def test_lazy_ranking_equals_scoring_everything():
     rng = np.random.default_rng(3)
     model, T_true, T_sensors = _touching_scene()

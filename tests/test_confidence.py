@@ -137,6 +137,7 @@ def test_the_stage_fits_on_its_scenes_and_the_estimator_then_reports_the_confide
     assert estimate.confidence == pytest.approx(fit["prim_box/scene_0"]["probability"])
 
 
+@pytest.mark.slow
 def test_the_stage_refuses_scenes_that_are_all_right_or_all_wrong(prim_artifacts, tmp_path):  # noqa: F811
     import shutil
 

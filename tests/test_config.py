@@ -18,6 +18,7 @@ def test_group_and_key_overrides():
     assert cfg.sample.M == 50
 
 
+@pytest.mark.slow
 def test_unknown_key_is_a_config_error():
     with pytest.raises(ConfigError, match="sample.nope"):
         compose_config(["sample.nope=1"])
@@ -36,6 +37,7 @@ def test_params_file_overrides(tmp_path):
         load_params(tmp_path / "absent.yaml")
 
 
+@pytest.mark.slow
 def test_the_paper_preset_trains_the_autoencoder_on_reconstruction_alone():
     assert compose_config().ae.rank_weight > 0
     assert compose_config(["preset=paper"]).ae.rank_weight == 0

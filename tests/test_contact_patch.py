@@ -157,6 +157,7 @@ def test_normals_whose_integral_runs_away_give_finite_depths():
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.slow
 def test_sphere_off_centre_and_tilted(renderer, mesh_of, model, no_contact, seed):
     rng = np.random.default_rng(seed)
     result, p_true, n_true, _ = press(renderer, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0],
@@ -255,6 +256,7 @@ def test_centre_contact_puts_an_off_centre_press_at_the_centre(renderer, mesh_of
     assert abs(centred.mask.sum() / off.mask.sum() - 1.0) < 0.1  # the same press, moved
 
 
+@pytest.mark.slow
 def test_read_angles_centres_only_contacts_read_from_images(renderer, mesh_of, model, no_contact):
     from tactile6d.core.config import compose_config
     from tactile6d.core.settings import SelectSettings
@@ -530,6 +532,7 @@ BOX_CASES = {
 
 
 @pytest.mark.parametrize("case", list(BOX_CASES))
+@pytest.mark.slow
 def test_image_to_patch_is_the_whole_image_computation(renderer, mesh_of, model, no_contact, case):
     shape, point, kwargs, as_described = BOX_CASES[case]
     result, *_ = press(renderer, mesh_of, shape, point, [-1.0, 0.0, 0.0], **kwargs)

@@ -101,6 +101,7 @@ def lifted_contacts(world, lifted: int, back: float) -> tuple[np.ndarray, contac
 
 
 @pytest.mark.parametrize("kinematics", [{}, EXACT_POSES], ids=["corrected sensors", "exact sensors"])
+@pytest.mark.slow
 def test_selection_fit_and_refinement_leave_out_a_sensor_that_does_not_touch(world, kinematics):
     """Against the naive reference: each step run on the touching sensors alone. The lifted sensor is 10 cm back,
     where no pose near the object presses it, so the ranking through all three sensors scores as through two."""
@@ -124,6 +125,7 @@ def test_selection_fit_and_refinement_leave_out_a_sensor_that_does_not_touch(wor
 
 
 @pytest.mark.parametrize("free_weight", [0.0, 3.0])
+@pytest.mark.slow
 def test_score_refined_scores_poses_as_refine_and_score_does(world, free_weight):
     """Poses refined by ``refine_and_score`` (exact sensors: no corrections to pass on) and scored again as they
     stand by ``score_refined`` score the same, with the untouched gel's rows in the refinement or not."""
@@ -143,6 +145,7 @@ def test_score_refined_scores_poses_as_refine_and_score_does(world, free_weight)
     assert not np.allclose(out.poses, poses)  # refined: moved
 
 
+@pytest.mark.slow
 def test_a_pose_that_presses_a_sensor_showing_no_contact_pays_for_it(world):
     """The lifted sensor only 0.5 mm back: the true pose is still clear of it, a pose 3 mm further in presses it and
     scores worse by that press (beyond the allowance), though both fit the two touching sensors' contacts."""
@@ -219,6 +222,7 @@ def test_free_points_are_the_untouched_gel_on_a_grid_in_the_world_frame():
     ({"rank.agreement_weight": -1.0}, "agreement"),
     ({"rank.candidates": 2}, "candidates"),
 ])
+@pytest.mark.slow
 def test_bad_contact_and_agreement_settings_are_config_errors(bad, message):
     with pytest.raises(ConfigError, match=message):
         settings(**bad)

@@ -44,6 +44,7 @@ def stage_module(stage: dict) -> str:
 
 
 @pytest.mark.parametrize("name,stage", stages(), ids=[n for n, _ in stages()])
+@pytest.mark.slow
 def test_code_deps_match_imports(name, stage):
     module = REPO / "stages" / f"{stage_module(stage)}.py"
     assert module.is_file(), f"stage {name} runs {stage['cmd']!r}: no module {module.relative_to(REPO)}"

@@ -32,12 +32,14 @@ def committed_lock() -> tuple[str, dict]:
     return text, parse_yaml(text, "dvc.lock")
 
 
+@pytest.mark.slow
 def test_the_committed_lock_is_written_back_byte_for_byte():
     text, data = committed_lock()
     assert len(data["stages"]) > 50
     assert fast_lock.lock_text(data) == text == fast_lock._dump(data)
 
 
+@pytest.mark.slow
 def test_after_each_kind_of_change_the_text_is_dvcs_dump():
     text, data = committed_lock()
     fast_lock.lock_text(data)  # every entry's text kept
@@ -61,6 +63,7 @@ def test_after_each_kind_of_change_the_text_is_dvcs_dump():
     assert fast_lock.lock_text(data) == fast_lock._dump(data)
 
 
+@pytest.mark.slow
 def test_a_container_shared_by_two_entries_goes_through_dvcs_dump_with_its_alias():
     _, data = committed_lock()
     names = list(data["stages"])
@@ -71,6 +74,7 @@ def test_a_container_shared_by_two_entries_goes_through_dvcs_dump_with_its_alias
     assert text == fast_lock._dump(data) and "&id" in text
 
 
+@pytest.mark.slow
 def test_other_top_level_keys_and_no_stages_go_through_dvcs_dump():
     _, data = committed_lock()
     data["datasets"] = [{"name": "d", "type": "dvc", "url": "x"}]
@@ -95,6 +99,7 @@ def same(a, b) -> bool:
     return pickle.dumps(a) == pickle.dumps(b)
 
 
+@pytest.mark.slow
 def test_the_committed_lock_reads_as_the_whole_file_reads_entry_by_entry():
     text, data = committed_lock()
     parser = CountingParser()
@@ -108,6 +113,7 @@ def test_the_committed_lock_reads_as_the_whole_file_reads_entry_by_entry():
     assert same(fast_lock.parse_lock(text, "dvc.lock", parser), data)
 
 
+@pytest.mark.slow
 def test_after_a_stage_is_written_only_its_entry_is_parsed_again():
     text, data = committed_lock()
     parser = CountingParser()
@@ -123,6 +129,7 @@ def test_after_a_stage_is_written_only_its_entry_is_parsed_again():
 
 
 @pytest.mark.parametrize("case", ["alias", "flow", "twice", "stages_first", "key_after"])
+@pytest.mark.slow
 def test_texts_the_entries_cannot_be_read_apart_in_are_read_whole(case):
     _, data = committed_lock()
     names = list(data["stages"])
@@ -173,6 +180,7 @@ def run_dvc(cwd: Path, *args: str, fast: bool) -> str:
                           text=True).stdout
 
 
+@pytest.mark.slow
 def test_a_pipeline_run_through_it_writes_the_lock_plain_dvc_writes(tmp_path):
     dvc_yaml = """stages:
   make:

@@ -60,6 +60,7 @@ def run(capsys, *argv):
     return code, out, err
 
 
+@pytest.mark.slow
 def test_prints_the_best_pose_line_then_a_summary(capsys, artifacts, scene):
     code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
                          "select.method=baseline", "select.N=1000")
@@ -86,6 +87,7 @@ def test_json_has_the_top_k_poses_scores_and_timings(capsys, artifacts, scene):
     assert result["losses"][0] < 0.003
 
 
+@pytest.mark.slow
 def test_ours_runs_with_a_checkpoint_and_the_data_background(capsys, artifacts, scene, data_dir, monkeypatch):
     from test_estimator import write_tiny_autoencoder
 
@@ -98,6 +100,7 @@ def test_ours_runs_with_a_checkpoint_and_the_data_background(capsys, artifacts, 
     assert "latent angles" in out
 
 
+@pytest.mark.slow
 def test_a_sensor_background_from_a_file(capsys, artifacts, scene, tmp_path):
     """--background: the images here are flat, so with that colour as the background every sensor reads
     as no contact and all three get the same latent angle."""
@@ -120,6 +123,7 @@ def test_a_sensor_background_from_a_file(capsys, artifacts, scene, tmp_path):
      ({"select.method": "nonsense"}, "select.method must be one of ours, baseline"),
      ({"select.no_such_key": "1"}, "bad config override")],
 )
+@pytest.mark.slow
 def test_errors_are_one_line_and_exit_2(capsys, artifacts, scene, change, message):
     options = {"--object": "prim_box", "--scene": str(scene), "--artifacts": str(artifacts)}
     overrides = {"select.method": "baseline"}
@@ -178,6 +182,7 @@ def test_stages_agree_with_the_online_estimator(request, artifacts, scene, metho
         np.testing.assert_allclose(ranked["scores"][s, :n], result.scores, rtol=0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_bench_without_artifacts_says_so(capsys, tmp_path):
     code = cli.main(["bench", "estimate", "--artifacts", str(tmp_path), "--object", "004_sugar_box"])
     _out, err = capsys.readouterr()
@@ -185,6 +190,7 @@ def test_bench_without_artifacts_says_so(capsys, tmp_path):
     assert err.startswith(f"error: no object has its artifacts in {tmp_path}") and "dvc repro" in err
 
 
+@pytest.mark.slow
 def test_a_scene_that_matches_nothing_is_recorded_as_failed(artifacts, scene):
     scenes = write_scene_set(artifacts, scene, name="far")
     scenes.T_world_sensors[1, 0, :3, 3] += [1.0, 0.0, 0.0]  # 1 m away: no pair of box points is that far apart
@@ -208,6 +214,7 @@ def test_a_scene_with_bad_input_stops_the_stage_instead_of_counting_as_failed(ca
     assert not (layout.run_dir(artifacts, "bad", "baseline") / "tuples.h5").exists()
 
 
+@pytest.mark.slow
 def test_an_empty_scene_set_goes_through(artifacts):
     empty = SceneSet(np.zeros(0, str), np.zeros(0, str), np.zeros((0, 4, 4)), np.zeros((0, 3, 4, 4)),
                      np.zeros((0, 3, 320, 240, 3), np.uint8), np.zeros((0, 3, 3)), np.zeros((0, 3, 3)),
@@ -275,6 +282,7 @@ def test_text_output_heads_each_result_with_its_scene(capsys, artifacts, scene, 
         assert lines[2].startswith("method baseline")
 
 
+@pytest.mark.slow
 def test_a_scenes_root_with_object_auto(capsys, artifacts, scene, tmp_path, monkeypatch):
     """Every folder with a poses_sensors.txt under the root, in natural order; the object is the name of
     the folder holding each scene; the progress bar goes to stderr only."""
@@ -292,6 +300,7 @@ def test_a_scenes_root_with_object_auto(capsys, artifacts, scene, tmp_path, monk
     assert "0/4" in err and "scene/s" in err  # the bar as first drawn; later redraws depend on timing
 
 
+@pytest.mark.slow
 def test_a_bad_scene_among_good_ones(capsys, artifacts, scene, tmp_path):
     """The good scenes print, each bad one prints one error line naming its folder, exit status 1."""
     root = tmp_path / "triplets"
@@ -313,6 +322,7 @@ def test_a_bad_scene_among_good_ones(capsys, artifacts, scene, tmp_path):
     assert errors[3] == "error: 3 of 5 scenes failed"
 
 
+@pytest.mark.slow
 def test_a_zero_axis_with_an_angle_is_a_clear_error(capsys, artifacts, scene, tmp_path):
     folder = zero_axis_scene(scene, tmp_path / "zero")
     code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
@@ -322,6 +332,7 @@ def test_a_zero_axis_with_an_angle_is_a_clear_error(capsys, artifacts, scene, tm
 
 
 @pytest.mark.parametrize("n_scenes", [1, 2])
+@pytest.mark.slow
 def test_an_unknown_object_lists_the_known_ones(capsys, artifacts, scene, n_scenes):
     code, out, err = run(capsys, "--object", "nope", "--scene", *[str(scene)] * n_scenes,
                          "--artifacts", str(artifacts))
@@ -389,6 +400,7 @@ def angles_of(out):
     return np.asarray(json.loads(out)["selection"]["angles"])
 
 
+@pytest.mark.slow
 def test_one_background_per_sensor_from_files_or_the_scene_folder(capsys, artifacts, scene, tmp_path):
     """Read against its own unit's no-contact image every sensor reads as no contact (one angle for all);
     against one background for all, the units that differ from it do not. The units differ by a flat
@@ -435,6 +447,7 @@ def test_one_background_per_sensor_from_files_or_the_scene_folder(capsys, artifa
                        "background_2.png missing"),
     ("not a unit axis", "poses_sensors.txt: line 2: rotation axis of length 2, not a unit vector"),
 ])
+@pytest.mark.slow
 def test_bad_backgrounds_and_pose_files_are_one_error_line(capsys, artifacts, scene, tmp_path, case, message):
     from test_estimator import write_tiny_autoencoder
 
@@ -485,6 +498,7 @@ def test_overlapping_sensors_are_one_error_line(capsys, artifacts, scene, tmp_pa
     assert "sensors 0 and 2 overlap" in err
 
 
+@pytest.mark.slow
 def test_no_contact_images_estimated_from_the_scenes(capsys, artifacts, scene, tmp_path):
     """--background from-scenes: each sensor's no-contact image is the pixel median of its images over the
     scenes (each pressed somewhere else), said in a note; fewer than five scenes are an error line."""

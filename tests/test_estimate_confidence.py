@@ -42,6 +42,7 @@ def estimate_with(world, model, n_sensors: int = 3) -> tuple[est.Estimator, est.
         return e, e.estimate(world["T_world_sensors"][:n_sensors], world["images"][:n_sensors])
 
 
+@pytest.mark.slow
 def test_an_estimate_carries_the_models_confidence_and_distinct_poses(world):
     model = hand_model()
     e, result = estimate_with(world, model)
@@ -58,6 +59,7 @@ def test_an_estimate_carries_the_models_confidence_and_distinct_poses(world):
     assert e.with_settings(e.settings).confidence_model is model
 
 
+@pytest.mark.slow
 def test_without_a_model_there_is_no_confidence(world):
     _, result = estimate_with(world, None)
     assert result.confidence is None and result.distinct is None and result.ambiguous is False
@@ -65,6 +67,7 @@ def test_without_a_model_there_is_no_confidence(world):
     assert out["confidence"] is None and out["ambiguous"] is False and out["distinct_poses"] == []
 
 
+@pytest.mark.slow
 def test_one_sensor_leaves_far_poses_scoring_nearly_as_well_ambiguous(world):
     ratio = 0.5
     e, result = estimate_with(world, hand_model(ratio), n_sensors=1)
@@ -79,12 +82,14 @@ def test_one_sensor_leaves_far_poses_scoring_nearly_as_well_ambiguous(world):
     assert len(strict.distinct) < len(result.distinct)
 
 
+@pytest.mark.slow
 def test_ambiguous_is_more_than_one_distinct_pose(world):
     _, result = estimate_with(world, None)
     assert replace(result, distinct=np.array([0, 2])).ambiguous
     assert not replace(result, distinct=np.array([0])).ambiguous
 
 
+@pytest.mark.slow
 def test_to_dict_carries_the_confidence_and_is_json(world):
     _, result = estimate_with(world, hand_model())
     result = replace(result, distinct=np.array([0, 2], dtype=np.int64))  # as if rank 2 were a rival
@@ -142,6 +147,7 @@ def artifacts_with_model(artifacts, tmp_path):  # noqa: F811  (the imported fixt
 ESTIMATE = ["--object", "prim_box", "select.method=baseline", "select.N=1000"]
 
 
+@pytest.mark.slow
 def test_the_command_prints_the_confidence_and_the_rivals(capsys, artifacts_with_model, scene):  # noqa: F811
     code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts_with_model), "--json")
     assert code == 0, err
@@ -158,6 +164,7 @@ def test_the_command_prints_the_confidence_and_the_rivals(capsys, artifacts_with
     assert len(ambiguous) == 1 and f"{len(ranks)} distinct poses (ranks {', '.join(map(str, ranks))};" in ambiguous[0]
 
 
+@pytest.mark.slow
 def test_the_command_without_a_model_says_so_in_one_line(capsys, artifacts, scene):  # noqa: F811
     code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts))
     assert code == 0, err
@@ -168,6 +175,7 @@ def test_the_command_without_a_model_says_so_in_one_line(capsys, artifacts, scen
     assert result["confidence"] is None and result["ambiguous"] is False and result["distinct_poses"] == []
 
 
+@pytest.mark.slow
 def test_the_stage_fits_the_same_model_in_one_process_and_on_two_workers(artifacts, scene):  # noqa: F811
     # Four scenes of the triplet, two of them labelled 3 cm off their truth: two right, two wrong estimates.
     T, images = read_scene_dir(scene)

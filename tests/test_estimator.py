@@ -97,6 +97,7 @@ def pose_errors(T, T_ref):
     return np.linalg.norm(T[:3, 3] - T_ref[:3, 3]), np.degrees(g.rotation_angle(T[:3, :3], T_ref[:3, :3]))
 
 
+@pytest.mark.slow
 def test_ours_recovers_the_true_pose_as_the_best(world):
     result = make_estimator(world, **EXACT_POSES).estimate(world["T_world_sensors"], world["images"])
     dt, dr = pose_errors(result.best, T_TRUE)
@@ -116,6 +117,7 @@ def test_ours_recovers_the_true_pose_as_the_best(world):
     assert result.seconds["total"] >= sum(result.seconds[s] for s in est.STEPS)
 
 
+@pytest.mark.slow
 def test_steps_called_one_by_one_give_the_same_estimate(world):
     e = make_estimator(world)
     T = world["T_world_sensors"]
@@ -129,6 +131,7 @@ def test_steps_called_one_by_one_give_the_same_estimate(world):
     np.testing.assert_array_equal(ranked.scores, whole.scores)
 
 
+@pytest.mark.slow
 def test_an_image_far_from_every_database_angle_widens_its_delta_h(world):
     angles = world["db_angles"][world["idx"]].copy()
     angles[1] = 0.7  # the database angles lie in [0, 0.6]
@@ -137,6 +140,7 @@ def test_an_image_far_from_every_database_angle_widens_its_delta_h(world):
     assert sel.delta_h[1] > 0.1 - 1e-9 and sel.omega_sizes[1] >= 1
 
 
+@pytest.mark.slow
 def test_baseline_uses_every_point_and_needs_no_images(world):
     e = est.Estimator(world["points"], [world["mesh"].vertices], settings=settings(**{"select.method": "baseline"}),
                       normals=world["normals"], surface=world["mesh"])
@@ -148,6 +152,7 @@ def test_baseline_uses_every_point_and_needs_no_images(world):
 
 
 @pytest.mark.parametrize("n_sensors", [1, 2, 4, 5])
+@pytest.mark.slow
 def test_any_number_of_sensors_works(world, n_sensors):
     T = world["T_world_sensors"]
     if n_sensors > 3:
@@ -200,6 +205,7 @@ def _bad_pose(kind):
      ("reflection", "sensor pose 1: the upper-left 3x3 block is not a rotation"),
      ("last_row", "sensor pose 0: the last row")],
 )
+@pytest.mark.slow
 def test_bad_sensor_poses_are_rejected(world, kind, message):
     with pytest.raises(InputError, match=message):
         make_estimator(world).estimate(_bad_pose(kind), world["images"])
@@ -213,6 +219,7 @@ def test_bad_sensor_poses_are_rejected(world, kind, message):
      (np.zeros((3, 320, 240, 3), np.float32), "image 0 has dtype float32"),
      (None, "needs one tactile image per sensor")],
 )
+@pytest.mark.slow
 def test_bad_images_are_rejected(world, images, message):
     with pytest.raises(InputError, match=message):
         make_estimator(world).estimate(world["T_world_sensors"], images)
@@ -270,6 +277,7 @@ def write_tiny_autoencoder(artifacts: Path, n_points: int, name: str):
     contact_patch.save_model(small_patch_model(), layout.patch_model_file(artifacts))
 
 
+@pytest.mark.slow
 def test_missing_artifacts_name_the_dvc_command(tmp_path, world):
     with pytest.raises(ArtifactError) as missing_surface:
         est.Estimator.from_artifacts("prim_x", tmp_path)
@@ -284,6 +292,7 @@ def test_missing_artifacts_name_the_dvc_command(tmp_path, world):
     assert baseline.encoder is None and baseline.points.shape == (800, 3)
 
 
+@pytest.mark.slow
 def test_ours_from_artifacts_encodes_images_with_the_checkpoint(tmp_path, world, data_dir):
     write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"], world["normals"])
     write_tiny_autoencoder(tmp_path, 800, "prim_x")
@@ -337,6 +346,7 @@ def make_full_estimator(world, off_grid, **overrides):
     )
 
 
+@pytest.mark.slow
 def test_refinement_brings_an_off_grid_estimate_to_the_surface(world, off_grid):
     T, images = off_grid["T_world_sensors"], world["images"]
     plain = make_full_estimator(world, off_grid, **EXACT_POSES, **{"rank.refine": "false"}).estimate(T, images)
@@ -348,6 +358,7 @@ def test_refinement_brings_an_off_grid_estimate_to_the_surface(world, off_grid):
     np.testing.assert_allclose(refined.scores, refined.losses + refined.penetrations.max(axis=1))
 
 
+@pytest.mark.slow
 def test_all_switches_on_recover_the_off_grid_pose(world, off_grid):
     e = make_full_estimator(world, off_grid, **{"select.delta_d_rule": "best_n", "select.normal_tol_deg": 20,
                                                 "optimize.normal_weight": 0.01, "rank.refine": "true"})
@@ -357,6 +368,7 @@ def test_all_switches_on_recover_the_off_grid_pose(world, off_grid):
     assert result.selection.tuples.shape[0] <= 5000
 
 
+@pytest.mark.slow
 def test_two_sensors_only_the_normals_tell_the_rotation_about_their_line(world, off_grid):
     # Two contacts (database points on the -x and -y faces) fix the pose up to a turn about the line
     # through them: positions alone cannot tell those poses apart, the contact normals can.
@@ -370,6 +382,7 @@ def test_two_sensors_only_the_normals_tell_the_rotation_about_their_line(world, 
     assert pose_errors(off.best, T_TRUE)[1] > 5.0
 
 
+@pytest.mark.slow
 def test_switches_that_need_normals_or_a_surface_say_so(world):
     with pytest.raises(InputError, match="normals"):
         est.Estimator(world["points"], [world["mesh"].vertices], world["db_angles"], encoder=lambda x: x,
@@ -379,6 +392,7 @@ def test_switches_that_need_normals_or_a_surface_say_so(world):
                       settings=settings(**{"rank.refine": "true"}), normals=world["normals"])
 
 
+@pytest.mark.slow
 def test_a_sensor_with_its_own_background(tmp_path, world):
     """A real sensor's no-contact image replaces the simulated one: the encoder subtracts it."""
     write_object_artifacts(tmp_path, "prim_x", world["mesh"], world["points"], world["normals"])
@@ -394,6 +408,7 @@ def test_a_sensor_with_its_own_background(tmp_path, world):
 
 
 @pytest.mark.parametrize("bad", [{"select.delta_h": 0.6}, {"select.delta_h": 0.0}, {"select.delta_h_widen_step": 0.0}])
+@pytest.mark.slow
 def test_inconsistent_delta_h_settings_are_a_config_error_not_a_failed_estimate(bad):
     # delta_h above delta_h_max (0.5) used to fail every estimate one by one as "no match"
     with pytest.raises(ConfigError, match="delta_h"):
@@ -420,6 +435,7 @@ def test_normal_max_sensors_must_be_a_positive_count(key):
         settings(**{key: 0})
 
 
+@pytest.mark.slow
 def test_join_sensors_is_null_or_at_least_two():
     with pytest.raises(ConfigError, match="select.join_sensors"):
         settings(**{"select.join_sensors": 1})
@@ -461,6 +477,7 @@ def three_units(world, data_dir, tmp_path_factory):
             "over_units": np.stack([render(units[i], i) for i in range(3)])}
 
 
+@pytest.mark.slow
 def test_each_unit_read_against_its_own_background_reads_like_the_common_rendering(world, three_units):
     def estimator(background, *overrides):
         return est.Estimator.from_artifacts("prim_x", three_units["artifacts"],
@@ -501,6 +518,7 @@ def test_each_unit_read_against_its_own_background_reads_like_the_common_renderi
     np.testing.assert_array_equal(built.estimate(T, three_units["over_units"]).angles, own.angles)
 
 
+@pytest.mark.slow
 def test_the_default_background_path_is_unchanged_by_per_sensor_backgrounds(world, three_units):
     """Passing the common background once per sensor gives the bits of passing it once."""
     e = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
@@ -512,6 +530,7 @@ def test_the_default_background_path_is_unchanged_by_per_sensor_backgrounds(worl
     np.testing.assert_array_equal(each.poses, once.poses)
 
 
+@pytest.mark.slow
 def test_a_no_contact_image_of_another_unit_is_warned_about(world, three_units):
     """Each unit's images read against another unit's no-contact image (the common one turned half a turn:
     the same LEDs laid out otherwise) give a UnitWarning per image; against their own, none."""
@@ -528,6 +547,7 @@ def test_a_no_contact_image_of_another_unit_is_warned_about(world, three_units):
         e.estimate(T, images, backgrounds=three_units["units"])
 
 
+@pytest.mark.slow
 def test_one_no_contact_latent_serves_every_unit(three_units):
     """The model sees image - background: each unit's own no-contact image is the same (zero) input, so a
     per-sensor no-contact latent would be one latent repeated."""
@@ -547,6 +567,7 @@ COLOUR = np.broadcast_to(np.array([60, 90, 120], np.uint8), (320, 240, 3))  # a 
     (np.full((320, 240, 3), 90, np.uint8), "background is grey"),
     ([COLOUR, COLOUR, COLOUR[..., 0]], r"background 2 is 240 wide x 320 high, .*it has one channel"),
 ])
+@pytest.mark.slow
 def test_bad_backgrounds_are_named(world, three_units, backgrounds, message):
     e = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
                                      background=three_units["common"])
@@ -558,6 +579,7 @@ def test_bad_backgrounds_are_named(world, three_units, backgrounds, message):
                                                                       three_units["over_common"])
 
 
+@pytest.mark.slow
 def test_images_read_wrong_are_refused_before_any_work(world, three_units, data_dir):
     e = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
                                      background=three_units["common"])
@@ -580,6 +602,7 @@ def test_images_read_wrong_are_refused_before_any_work(world, three_units, data_
         e.estimate(T, np.concatenate([on_unit[:2], on_unit[2:, ..., ::-1]]), backgrounds=units)
 
 
+@pytest.mark.slow
 def test_bodies_may_overlap_by_the_declared_sensor_pose_error(world):
     """Two bodies 3 mm into each other: within two standard deviations of two sensors' relative error at the
     default 1.5 mm and 1.5 deg (4.7 mm), so a hand's reported poses are read; declared exact, they cannot
@@ -592,6 +615,7 @@ def test_bodies_may_overlap_by_the_declared_sensor_pose_error(world):
         make_estimator(world, **EXACT_POSES).check_scene(T, world["images"])
 
 
+@pytest.mark.slow
 def test_overlapping_sensors_and_one_sensor(world):
     T = world["T_world_sensors"].copy()
     T[2] = T[0]

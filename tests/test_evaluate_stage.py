@@ -57,6 +57,7 @@ def artifacts(tmp_path):
     return tmp_path
 
 
+@pytest.mark.slow
 def test_metrics_file_has_the_keys_and_the_values(artifacts):
     with warnings.catch_warnings():
         warnings.filterwarnings("error", message=".*does not press")  # every sensor is pressed at the true poses

@@ -143,6 +143,7 @@ def torn_pool() -> tuple:
     return pool, manager
 
 
+@pytest.mark.slow
 def test_a_pool_thread_left_reading_a_torn_result_is_freed():
     """free_torn_result completes the torn message with zeros: the manager thread marks the pool broken
     and ends."""
@@ -156,6 +157,7 @@ def test_a_pool_thread_left_reading_a_torn_result_is_freed():
         pool.shutdown(wait=False, cancel_futures=True)
 
 
+@pytest.mark.slow
 def test_a_pool_shut_down_under_ctrl_c_frees_a_torn_result():
     """Under a Ctrl-C, shutdown_pool kills the workers and leaves no manager thread behind, even one
     reading a torn result (the interpreter would wait for it at exit: the program would hang)."""
@@ -167,6 +169,7 @@ def test_a_pool_shut_down_under_ctrl_c_frees_a_torn_result():
     assert not manager.is_alive()
 
 
+@pytest.mark.slow
 def test_config_picks_the_executor_and_rejects_bad_values():
     cfg = compose_config()
     assert cfg.executor.address is None
@@ -182,6 +185,7 @@ def test_config_picks_the_executor_and_rejects_bad_values():
             ex.executor_from_config(compose_config(overrides), 2)
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_a_clear_error():
     import socket
 

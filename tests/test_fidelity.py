@@ -56,6 +56,7 @@ def _data_dir() -> Path:
     not (_data_dir() / "caddeo2023" / "triplets").is_dir(),
     reason="the paper's triplets are not in the data directory ($TACTILE6D_DATA or ../shared/data)",
 )
+@pytest.mark.slow
 def test_three_paper_images_are_reproduced():
     from tactile6d.cli import fidelity as command
     from tactile6d.core.config import compose_config

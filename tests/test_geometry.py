@@ -157,6 +157,7 @@ def test_symmetric_to_eigen_matches_eigh(seed):
 
 
 @given(seeds)
+@pytest.mark.slow
 def test_covariances_to_rotations_matches_svd(seed):
     rng = np.random.default_rng(seed)
     # Cross-covariances as weighted_kabsch builds them: three or more centred points, noisy matches.

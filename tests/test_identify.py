@@ -215,6 +215,7 @@ def test_the_guess_at_the_winner_changes_nothing(squeezed, monkeypatch, order, g
     np.testing.assert_array_equal(result.best.candidate.estimate.poses, plain.best.candidate.estimate.poses)
 
 
+@pytest.mark.slow
 def test_an_identifier_without_weights_only_screens(squeezed):
     T_sensors, _ = squeezed
     settings = landmark_settings(**{"select.method": "baseline"})
@@ -225,6 +226,7 @@ def test_an_identifier_without_weights_only_screens(squeezed):
         identifier.identify(T_sensors)
 
 
+@pytest.mark.slow
 def test_objects_with_other_settings_cannot_share_an_identifier():
     a = box_estimator(0.10, None, landmark_settings(**{"select.method": "baseline"}))
     b = box_estimator(0.10, None, landmark_settings(**{"select.method": "baseline", "select.N": 100}))
@@ -251,6 +253,7 @@ def test_an_object_cannot_also_be_a_distractor(tmp_path):
         Identifier.from_artifacts(["prim_box"], tmp_path, distractors=["prim_box", "shape_1"])
 
 
+@pytest.mark.slow
 def test_the_command_names_unknown_objects_and_missing_scenes(tmp_path, capsys):
     assert cli_main(["identify", "--scene", str(tmp_path), "--objects", "no_such_thing",
                      "--artifacts", str(tmp_path)]) == 2
@@ -276,6 +279,7 @@ def prim_artifacts(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 def test_the_command_takes_distractors_from_their_own_folder(prim_artifacts):
     from tactile6d.cli.identify import library_of
     from tactile6d.cli.objects import KnownObjects
@@ -301,6 +305,7 @@ def touching_sensors(artifacts, name, wanted):
     return T_TRUE @ sensor_poses_touching(points[picks], normals[picks], [0.1, 1.0, -2.0], 0.002)
 
 
+@pytest.mark.slow
 def test_a_distractor_is_estimated_by_name(prim_artifacts, tmp_path, capsys):
     """`tactile6d estimate --object shape_3` reads the distractor's artifacts from their own folder."""
     import json
@@ -355,6 +360,7 @@ def test_spread_screens_give_the_same_identification(prim_artifacts, dask_cluste
                 np.testing.assert_array_equal(a.pose, b.pose)
 
 
+@pytest.mark.slow
 def test_a_worker_reloads_the_library_for_a_new_identifier(prim_artifacts, monkeypatch):
     """A long-lived worker (a cluster's) keeps one library per identifier: the same source is loaded
     once, a new identifier's (new token, the artifacts may have changed) replaces it."""
@@ -441,6 +447,7 @@ def write_tiny_scenes(artifacts, name):
     write_artifact(layout.scenes_file(artifacts, name), "scenes", scenes.as_datasets())
 
 
+@pytest.mark.slow
 def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifacts):
     import json
 
@@ -458,6 +465,7 @@ def test_the_identify_stage_writes_accuracy_and_the_confusion_matrix(prim_artifa
     assert metrics["pose_of_correct"]["pos_err_cm_top1"] < 1.0
 
 
+@pytest.mark.slow
 def test_the_calibration_stage_fits_weights_on_the_calibration_scenes(prim_artifacts, tmp_path):
     """calibrate_identify screens the calibration scenes against the library (objects and distractors)
     and writes weights with which the true objects rank first."""
@@ -523,6 +531,7 @@ def identify_json(capsys, root, scene, *options):
     return code, out, err
 
 
+@pytest.mark.slow
 def test_identify_reads_each_sensor_against_its_own_background(capsys, units_library):
     import json
 
@@ -541,6 +550,7 @@ def test_identify_reads_each_sensor_against_its_own_background(capsys, units_lib
     assert err.startswith("error: 2 background images for 3 sensors")
 
 
+@pytest.mark.slow
 def test_identify_applies_the_sensor_offsets(capsys, units_library, tmp_path):
     """``--sensor-offsets`` reads the scene as if the corrected poses had been written into it."""
     import json

@@ -30,6 +30,7 @@ def default_background(data_dir):
 # --- grey and BGR images ------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_no_image_of_the_papers_triplets_looks_bgr_and_every_swapped_one_does(data_dir, default_background):
     files = sorted(glob.glob(str(data_dir / "caddeo2023/triplets/*/*/Image_heatmap_*.png")))
     assert len(files) == 120
@@ -169,6 +170,7 @@ def overlap_found(T, margin=0.0) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_the_overlap_check_agrees_with_the_scene_generators_and_with_sampling():
     """The check (its bounding-sphere shortcut included) finds what the separating-axis test the scene
     generator places sensors with finds; sampling never finds an overlap the check misses."""

@@ -49,6 +49,7 @@ def run_json(capsys, scene, artifacts, *more):
     return code, json.loads(out)
 
 
+@pytest.mark.slow
 def test_it_reads_the_contacts_the_estimator_reads_and_draws_them(capsys, scene, artifacts, data_dir, tmp_path):
     figure = tmp_path / "figures" / "reading.png"
     code, reading = run_json(capsys, scene, artifacts, "--out", str(figure))
@@ -71,6 +72,7 @@ def test_it_reads_the_contacts_the_estimator_reads_and_draws_them(capsys, scene,
     assert drawn is not None and drawn.shape[0] > drawn.shape[1] > 400  # three rows of four panels
 
 
+@pytest.mark.slow
 def test_the_text_says_where_each_sensor_touches(capsys, scene, artifacts):
     code, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts))
     assert code == 0
@@ -82,6 +84,7 @@ def test_the_text_says_where_each_sensor_touches(capsys, scene, artifacts):
     assert "would refuse" not in out
 
 
+@pytest.mark.slow
 def test_every_image_the_estimator_refuses_is_named_and_the_others_still_read(capsys, scene, artifacts, data_dir):
     bgr = read_tactile_image(scene / "Image_heatmap_1.png")[..., ::-1]
     write_tactile_image(scene / "Image_heatmap_1.png", np.ascontiguousarray(bgr))
@@ -101,6 +104,7 @@ def test_every_image_the_estimator_refuses_is_named_and_the_others_still_read(ca
         check_images_against_backgrounds(images, np.stack([background] * 3))
 
 
+@pytest.mark.slow
 def test_overlapping_sensors_are_a_problem_of_the_scene(capsys, scene, artifacts):
     lines = (scene / "poses_sensors.txt").read_text().splitlines()
     (scene / "poses_sensors.txt").write_text("\n".join([lines[0], lines[0], lines[2]]) + "\n")
@@ -109,6 +113,7 @@ def test_overlapping_sensors_are_a_problem_of_the_scene(capsys, scene, artifacts
     assert "problem: sensors 0 and 1 overlap" in out and "would refuse this scene" in out
 
 
+@pytest.mark.slow
 def test_an_untouched_sensor_reads_no_contact(capsys, scene, artifacts, data_dir):
     shutil.copy(data_dir / "digit" / "caddeo2023" / "background.png", scene / "Image_heatmap_0.png")
     code, reading = run_json(capsys, scene, artifacts)
@@ -117,6 +122,7 @@ def test_an_untouched_sensor_reads_no_contact(capsys, scene, artifacts, data_dir
     assert reading["sensors"][1]["contact"] is True
 
 
+@pytest.mark.slow
 def test_drifted_light_is_aligned_before_the_contact_is_read(capsys, scene, artifacts):
     _, clean = run_json(capsys, scene, artifacts)
     image = read_tactile_image(scene / "Image_heatmap_0.png").astype(np.float64)
@@ -130,6 +136,7 @@ def test_drifted_light_is_aligned_before_the_contact_is_read(capsys, scene, arti
     assert shift < 0.5  # mm
 
 
+@pytest.mark.slow
 def test_own_backgrounds_are_taken_as_estimate_takes_them(capsys, scene, artifacts, data_dir):
     background = data_dir / "digit" / "caddeo2023" / "background.png"
     for i in range(3):
@@ -147,6 +154,7 @@ def test_missing_patch_calibration_names_the_stage_that_makes_it(capsys, scene, 
     assert code == 2 and "calibrate_patch" in err
 
 
+@pytest.mark.slow
 def test_another_units_no_contact_image_is_named_but_the_scene_still_read(capsys, scene, artifacts, data_dir):
     """The paper's triplet read against TACTO's DIGIT's no-contact image: each sensor's light problems say it
     looks like another unit's (a warning: the estimator reads the scene all the same)."""
@@ -163,6 +171,7 @@ def test_another_units_no_contact_image_is_named_but_the_scene_still_read(capsys
     assert "  light warning: image 2: its no-contact image looks like another DIGIT unit's" in out
 
 
+@pytest.mark.slow
 def test_a_bgr_image_is_named_as_such_not_as_another_units(capsys, scene, artifacts):
     """A BGR image agrees with no change of light from its no-contact image; its own problem says why."""
     bgr = read_tactile_image(scene / "Image_heatmap_2.png")[..., ::-1]

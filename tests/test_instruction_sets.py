@@ -77,6 +77,7 @@ def test_exports_print_every_pinned_variable():
     assert [line.split("=")[0] for line in lines] == [f"export {name}" for name in isa.PINNED_VARIABLES]
 
 
+@pytest.mark.slow
 def test_run_pinned_starts_an_unpinned_command_again_pinned(tmp_path):
     """A script that imported NumPy before it could pin calls run_pinned() before main(): it is started again
     with every cap, its arguments and the interpreter's own flags kept; an already pinned one runs once."""

@@ -201,6 +201,7 @@ def report_and_sleep(directory, seconds):
     time.sleep(seconds)
 
 
+@pytest.mark.slow
 def test_an_executor_interrupted_in_map_ends_its_workers_at_once(tmp_path):
     """A KeyboardInterrupt in this process alone (not its workers) while ``map`` waits: leaving the
     ``with`` block terminates the workers and their 30 s tasks instead of waiting for them."""
@@ -277,6 +278,7 @@ def kill_workers_then_interrupt(worker_pids) -> threading.Thread:
     return helper
 
 
+@pytest.mark.slow
 def test_an_interrupt_while_the_workers_die_leaves_no_thread_traceback(tmp_path, widened_race):
     """``LocalExecutor.map`` leaves its queued tasks to the pool's shutdown while an interrupt unwinds."""
     helper = kill_workers_then_interrupt(lambda: [int(p.name.split("-")[1]) for p in tmp_path.glob("pid-*")])

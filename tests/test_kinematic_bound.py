@@ -104,6 +104,7 @@ def test_one_sensor_is_its_own_reading_and_identical_ones_average():
     assert np.allclose(fused, e[0]) and np.allclose(P, C[0] / 3)
 
 
+@pytest.mark.slow
 def test_the_expected_bound_matches_the_realised_errors_over_many_draws():
     """The expected norm under the fused covariance against the oracle's realised errors for drawn sensor errors."""
     rng = np.random.default_rng(4)

@@ -59,6 +59,7 @@ def test_collision_fidelity_of_exact_and_loose_pieces():
     assert fid["excess"] == pytest.approx(0.1, abs=0.02)
 
 
+@pytest.mark.slow
 def test_coacd_pieces_cover_an_l_shape():
     l_shape = trimesh.util.concatenate(
         [trimesh.creation.box(extents=(0.1, 0.02, 0.02)),
@@ -90,6 +91,7 @@ def test_procedural_names(name, expected):
     assert meshes.is_primitive(name) is (expected or name in meshes.PRIMITIVE_NAMES)
 
 
+@pytest.mark.slow
 def test_procedural_shapes_are_reproducible_closed_and_of_ycb_like_size():
     kinds = set()
     for k in range(40):

@@ -109,6 +109,7 @@ def test_one_sensor_keeps_the_random_rotation_and_touches_exactly():
     np.testing.assert_allclose(fit.losses, 0, atol=1e-15)
 
 
+@pytest.mark.slow
 def test_gd_step_is_the_gradient_of_the_loss():
     # One step with unit gains returns xi - dE/dxi: compare with central differences in float64.
     rng = np.random.default_rng(5)
@@ -128,6 +129,7 @@ def test_gd_step_is_the_gradient_of_the_loss():
 
 
 @pytest.mark.parametrize("precision", ["float32", "float64"])
+@pytest.mark.slow
 def test_gd_program_holds_no_approximate_square_root(precision):
     """XLA rewrites x / sqrt(y) as x * rsqrt(y), and compiles rsqrt on the CPU from the approximate vrsqrtps
     and two Newton steps, whose last bit is the CPU vendor's: the paper's gradient descent, chaotic at its
@@ -145,6 +147,7 @@ def test_gd_program_holds_no_approximate_square_root(precision):
     assert "rsqrt(" not in text
 
 
+@pytest.mark.slow
 def test_gd_steps_are_repeated_single_steps_with_each_gain_on_its_components():
     # Three steps at gains (0.3, 0.7) against a naive loop: xi <- xi - diag(0.3 I3, 0.7 I3) dE/dxi, the
     # gradient by central differences, in float64.
@@ -174,6 +177,7 @@ def test_gd_batch_size_is_the_least_padded_size_of_few():
             assert opt.gd_batch_size(n, multiple) <= max(1.0625 * n, n + 2 * multiple)
 
 
+@pytest.mark.slow
 def test_gd_poses_do_not_depend_on_the_rest_of_the_batch(monkeypatch):
     # A tuple's poses are the same bits alone (padded to 64 poses), among 40 other tuples (615 poses, padded
     # to 640) and when those run in chunks (of 128 here), so neither the padding, nor the tuple count of an
@@ -209,6 +213,7 @@ def test_gd_converges_with_small_gains_and_cycles_within_a_bound_with_the_papers
         assert dt < 0.012 and dr < 3.0
 
 
+@pytest.mark.slow
 def test_gd_from_the_papers_starts_finds_the_pose_with_exact_correspondences():
     rng = np.random.default_rng(7)
     p, s, T = _scene(rng, 3)
@@ -219,6 +224,7 @@ def test_gd_from_the_papers_starts_finds_the_pose_with_exact_correspondences():
     assert dt < 0.012 and dr < 3.0
 
 
+@pytest.mark.slow
 def test_tuples_to_poses_shapes_and_tuple_index():
     rng = np.random.default_rng(8)
     points = rng.normal(scale=0.05, size=(30, 3))

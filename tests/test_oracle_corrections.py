@@ -12,6 +12,7 @@ from script_loader import load_script
 oracle = load_script("oracle_corrections")
 
 
+@pytest.mark.slow
 def test_without_sensor_errors_the_oracle_pays_no_corrections_and_its_terms_add_up(world):
     e = make_estimator(world, **{"rank.refine": "true"})
     T, c = lifted_contacts(world, 1, 0.10)

@@ -22,6 +22,7 @@ OWN = [f"+own.bunny.mesh={BUNNY}", "+own.bunny.units=cm", "+own.bunny.scale=5"]
 WEIGHTS = "identify.weights=[0.8624,0.3927,9.0066]"
 
 
+@pytest.mark.slow
 def test_an_entry_is_checked_and_names_its_key():
     cfg = compose_config(OWN)
     assert own_objects(cfg)["bunny"] == MeshSource("bunny", BUNNY, "cm", 5.0, (0.0, 0.0, 0.0))
@@ -114,6 +115,7 @@ def test_missing_artifacts_of_an_own_object_name_its_own_stages(tmp_path):
     assert re.search(r"your own objects \(conf/own\): [^;]*\bbunny\b", known.listing())
 
 
+@pytest.mark.slow
 def test_an_own_object_may_not_take_a_ycb_or_built_in_name(tmp_path, data_dir, monkeypatch):
     from stages import prepare_object
 

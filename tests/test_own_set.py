@@ -19,6 +19,7 @@ from tactile6d.sim.mesh_import import import_mesh, own_objects
 PACKAGE = Path(pybullet_data.getDataPath())
 
 
+@pytest.mark.slow
 def test_each_packaged_mesh_is_copied_where_its_own_entry_reads_it(tmp_path):
     assert import_package_meshes.main([f"paths.artifacts_dir={tmp_path}"]) == 0
     cfg = compose_config()
@@ -44,6 +45,7 @@ def test_the_packaged_meshes_are_hand_sized_closed_bodies_as_declared():
         assert np.linalg.norm(mesh.bounds.mean(axis=0)) < 0.005, name
 
 
+@pytest.mark.slow
 def test_a_file_the_package_lacks_is_an_error_naming_the_entry(tmp_path):
     with pytest.raises(ConfigError, match=r"own_set.files.pybullet_duck: pybullet_data has no file nope.obj"):
         import_package_meshes.main([f"paths.artifacts_dir={tmp_path}", "own_set.files.pybullet_duck=nope.obj"])

@@ -39,6 +39,7 @@ def assert_same_patch(a: contact_patch.ContactPatch, b: contact_patch.ContactPat
             assert x == y or (x != x and y != y), name  # NaN == NaN here
 
 
+@pytest.mark.slow
 def test_patches_read_in_workers_are_those_read_here_bit_for_bit(frame):
     images, no_contact, model = frame
     with PatchReader(2) as reader:
@@ -48,6 +49,7 @@ def test_patches_read_in_workers_are_those_read_here_bit_for_bit(frame):
         assert_same_patch(patch, contact_patch.image_to_patch(image, no_contact, model))
 
 
+@pytest.mark.slow
 def test_an_applied_light_fit_is_applied_before_reading_and_one_not_applied_is_not(frame):
     """read_patch brings an image to its no-contact image's light by its fit where the fit was applied, as the
     tracker does in this process (photometric.apply_light), and reads it as given otherwise."""
@@ -65,6 +67,7 @@ def test_an_applied_light_fit_is_applied_before_reading_and_one_not_applied_is_n
     assert not np.array_equal(read.depth, as_given.depth)
 
 
+@pytest.mark.slow
 def test_a_workers_error_is_raised_to_the_caller(frame):
     images, no_contact, model = frame
     with PatchReader(1) as reader:

@@ -227,6 +227,7 @@ DRIFTS = [([1.1, 0.9, 1.05], [0.83, 1.2, 0.9]), ([0.9, 1.1, 0.95], [1.2, 0.85, 1
 
 @pytest.mark.parametrize("drift", DRIFTS)
 @pytest.mark.parametrize("name", PRESSES)
+@pytest.mark.slow
 def test_a_rendered_press_under_drifted_light_gives_the_same_contact_point(renderer, name, drift):
     """Issue 34's test: the same press read through a gain/gamma change (+-10 %, gamma 0.83-1.2, noise 2)
     gives the contact point of the press under the no-contact image's light within 0.5 mm; read as given,
@@ -250,6 +251,7 @@ def test_a_rendered_press_under_drifted_light_gives_the_same_contact_point(rende
 
 
 @pytest.mark.parametrize("gain, gamma", [([0.92, 1.06, 0.97], [1.12, 0.88, 1.05]), ([1.08, 0.93, 1.04], [0.86, 1.15, 0.9])])
+@pytest.mark.slow
 def test_a_drift_is_recovered_under_a_press_over_most_of_the_gel(data_dir, gain, gamma):
     """A ball of 5 cm radius pressed 2.5 mm over the paper's unit's no-contact image leaves under a third of
     the gel untouched; under a drift the fit still finds the light there (each channel's gain within 0.04),
@@ -274,6 +276,7 @@ def _select_section() -> dict:
     return dict(compose_config().select)
 
 
+@pytest.mark.slow
 def test_alignment_is_off_for_the_baseline_and_without_a_no_contact_image():
     images = colourful_background()[None]
     off = SelectSettings.from_cfg({**_select_section(), "method": "baseline"})
@@ -310,6 +313,7 @@ def two_units(data_dir):
     return out
 
 
+@pytest.mark.slow
 def test_a_no_contact_image_of_another_unit_is_told_apart(two_units):
     """Against its own unit's no-contact image every press agrees where the gel is not pressed (drifted
     light too); against the other unit's hardly anywhere, and each image says so."""

@@ -1,12 +1,14 @@
 """The figure functions draw headless and save PNGs of the expected size."""
 
 import numpy as np
+import pytest
 
 from tactile6d.core.geometry import make_pose
 from tactile6d.core.sensor import sensor_poses_touching
 from tactile6d.evaluation import plots
 
 
+@pytest.mark.slow
 def test_figures_save(tmp_path):
     rng = np.random.default_rng(0)
     points = rng.uniform(-0.05, 0.05, (300, 3))

@@ -69,6 +69,7 @@ def _rank(artifacts, workers):
     return read_artifact(layout.run_dir(artifacts, "tiny", "baseline") / "ranked.h5", "ranked")
 
 
+@pytest.mark.slow
 def test_two_workers_rank_as_one_process_and_skip_a_scene_without_hypotheses(artifacts):
     path, truths = artifacts
     one = {k: np.asarray(v) for k, v in _rank(path, 1).data.items()}

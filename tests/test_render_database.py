@@ -44,6 +44,7 @@ def built(overrides):
     )
 
 
+@pytest.mark.slow
 def test_one_image_per_surface_point(built):
     _, _, surface, db = built
     assert database.image_count(db) == M
@@ -157,6 +158,7 @@ def test_body_contact_flag_marks_what_strict_mode_refuses():
     assert DigitRenderer.from_default_config(background, strict=False).render(dense, np.eye(4), deep[0]).mask.any()
 
 
+@pytest.mark.slow
 def test_bench_render_prints_json_last(data_dir, capsys):
     from tactile6d.cli import bench_render
 

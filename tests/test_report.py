@@ -83,6 +83,7 @@ def test_confidence_section_without_the_stage_says_so(tmp_path):
 
 
 @pytest.mark.parametrize("true_poses", [False, True])
+@pytest.mark.slow
 def test_tracking_section_tabulates_each_sequence_and_says_which_sensor_poses_it_was_fed(tmp_path, true_poses):
     from tactile6d.core.config import compose_config
     from tactile6d.data import layout

@@ -98,6 +98,7 @@ def test_adaptive_threshold_follows_the_reference_rule(n_max, seed):
         assert set(map(tuple, result.tuples)) <= set(map(tuple, tuples))
 
 
+@pytest.mark.slow
 def test_raising_past_n_max_keeps_the_lowest_errors_ties_by_index():
     # Every point twice: tuples come in groups of equal error, so the count jumps from 0 past n_max = 3.
     rng = np.random.default_rng(3)
@@ -350,6 +351,7 @@ def test_normal_check_keeps_the_true_tuple_and_drops_one_with_incompatible_norma
 # --- the sensor poses' error (sensors.pose_sigma_*) ----------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_paper_rule_never_lowers_the_threshold_below_the_tolerance():
     # The scene of test_best_n_keeps_the_nearest_tuple_that_the_paper_rule_drops: the paper's rule stops at
     # 0.5 mm (592 tuples; at 1 mm, its next step up, 5009 pass). With sensor poses that may be off by 0.8 mm,
@@ -384,6 +386,7 @@ def test_the_paper_rule_never_lowers_the_threshold_below_the_tolerance():
         sel.select_tuples(points, s, omegas, 5000, rng=rng, tolerance=-1e-3, **SELECT)
 
 
+@pytest.mark.slow
 def test_the_pose_sigma_settings_set_the_tolerances_as_documented():
     from tactile6d.core.config import compose_config
     from tactile6d.core.sensor import GEL_CENTER

@@ -224,6 +224,7 @@ def numeric_gradient(f, E, eps=1e-7):
     return grad
 
 
+@pytest.mark.slow
 def test_the_fit_ends_where_the_plainly_written_objective_is_flat(curved):
     """The Gauss-Newton system's Jacobians against a naive reference: at the fitted offset the objective,
     written out without them, has (numerically) no slope left; at no offset it has."""

@@ -57,6 +57,7 @@ def test_profiles_start_at_zero_stay_bounded_and_move_slowly():
     assert w[:5].sum() == 0 and w[14:].sum() == 0
 
 
+@pytest.mark.slow
 def test_shapes_and_names(seqs):
     Q, L = 4, 3
     assert len(seqs) == Q and seqs.fps == 30.0
@@ -72,6 +73,7 @@ def test_shapes_and_names(seqs):
     assert set(seqs.as_datasets()) == set(SEQUENCE_FIELDS)
 
 
+@pytest.mark.slow
 def test_a_seed_gives_the_same_set(objects, seqs):
     again = generate(objects)
     for key, value in seqs.as_datasets().items():
@@ -102,6 +104,7 @@ def test_contacts_stay_on_the_surface_and_move_smoothly(objects, seqs):
     np.testing.assert_allclose(gel_x - local[..., 0], seqs.depths, atol=2e-5)
 
 
+@pytest.mark.slow
 def test_every_frame_is_a_valid_grasp(objects, seqs):
     """No sensor body penetrates the object (all of its surface samples checked), no two bodies overlap."""
     surfaces = objects[1]
@@ -117,6 +120,7 @@ def test_every_frame_is_a_valid_grasp(objects, seqs):
     assert turns.max() <= SPEC.max_normal_turn_deg
 
 
+@pytest.mark.slow
 def test_touching_follows_the_lift_windows(objects, seqs):
     lifted = seqs.lift_weights > 0
     assert np.all(lifted.any(axis=1).sum(axis=1) == 1)  # lift_probability 1: one sensor per sequence
@@ -133,6 +137,7 @@ def test_touching_follows_the_lift_windows(objects, seqs):
     assert never.touching.all() and not never.lift_weights.any()
 
 
+@pytest.mark.slow
 def test_reported_poses_carry_a_constant_bias_and_a_small_jitter(objects):
     spec = replace(SPEC, lift_probability=0.0)
     out = generate(objects, spec=spec, n=6, seed=11)
@@ -149,6 +154,7 @@ def test_reported_poses_carry_a_constant_bias_and_a_small_jitter(objects):
     assert 0.6 * spec.jitter_deg < w_deg.std(axis=1).mean() < 1.5 * spec.jitter_deg
 
 
+@pytest.mark.slow
 def test_the_hand_moves_the_whole_grasp_within_its_maxima(objects, seqs):
     shift = np.linalg.norm(seqs.T_world_object[:, :, :3, 3] - seqs.T_world_object[:, :1, :3, 3], axis=-1)
     turn = np.degrees(rotation_angle(seqs.T_world_object[:, :, :3, :3], seqs.T_world_object[:, :1, :3, :3]))
@@ -165,6 +171,7 @@ def test_the_hand_moves_the_whole_grasp_within_its_maxima(objects, seqs):
     np.testing.assert_allclose(on_object(still), on_object(seqs), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_a_sequence_the_renderer_refuses_is_drawn_again(objects):
     calls, frames = [], []
 
@@ -184,6 +191,7 @@ def test_a_sequence_the_renderer_refuses_is_drawn_again(objects):
         generate(objects, spec=replace(SPEC, max_tries=2), n=1, render=refuses, names=("box",))
 
 
+@pytest.mark.slow
 def test_rendered_frames_show_contact_exactly_where_the_sensors_touch(objects):
     """Real images over a flat grey background: a sensor that does not touch (lifted) shows the no-contact
     image with its noise, a touching one its imprint; the renderer's own mask agrees with ``touching``."""
@@ -218,6 +226,7 @@ def test_the_config_section_gives_the_spec_defaults():
     assert cfg.sequences.count == 6 and cfg.sequences.objects is None
 
 
+@pytest.mark.slow
 def test_a_set_survives_its_artifact(tmp_path, seqs):
     path = write_artifact(tmp_path / "tracking.h5", "sequences", seqs.as_datasets(), compression="lzf")
     back = sequences.sequence_set_from_artifact(read_artifact(path, "sequences"))

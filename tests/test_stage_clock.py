@@ -54,6 +54,7 @@ def test_a_failing_status_or_a_run_outside_dvc_writes_nothing(tmp_path, monkeypa
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_the_time_counts_from_the_start_of_the_process(tmp_path):
     """A real process that sleeps before it imports anything of tactile6d: that time counts too (on Linux)."""
     script = textwrap.dedent(f"""

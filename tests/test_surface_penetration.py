@@ -3,6 +3,7 @@
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 from script_loader import load_script
 
@@ -16,6 +17,7 @@ def surface_of(points: np.ndarray) -> SimpleNamespace:
     return SimpleNamespace(points=points, tree=cKDTree(points))
 
 
+@pytest.mark.slow
 def test_the_deepest_surface_sample_inside_each_box_is_its_penetration():
     T_sensor = make_pose(rotvec_to_rotmat(np.array([0.0, 0.0, 0.4])), np.array([0.1, -0.2, 0.3]))
     centre = T_sensor[:3, :3] @ BOX_CENTER + T_sensor[:3, 3]  # the box's centre, world

@@ -99,6 +99,7 @@ def from_sequence(artifacts, recording):
     return track_json(["--sequence", str(recording["sequence"]), "--artifacts", str(artifacts), *BASELINE])
 
 
+@pytest.mark.slow
 def test_a_sequence_folder_gives_one_line_per_frame(capsys, artifacts, recording, from_sequence):
     code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(recording["sequence"]), "--artifacts",
                          str(artifacts), *BASELINE)
@@ -121,6 +122,7 @@ def test_a_sequence_folder_gives_one_line_per_frame(capsys, artifacts, recording
     np.testing.assert_allclose(np.array([f["pose"] for f in from_sequence]), np.array(poses), rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_json_has_a_pose_per_frame_and_the_fit_terms(from_sequence):
     assert len(from_sequence) == F
     first = from_sequence[0]
@@ -137,6 +139,7 @@ def test_json_has_a_pose_per_frame_and_the_fit_terms(from_sequence):
     assert any(f["mode"] == "update" for f in from_sequence[1:])  # the track is followed, not re-estimated
 
 
+@pytest.mark.slow
 def test_json_lines_are_strict_json(artifacts, recording):
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
@@ -151,6 +154,7 @@ def test_json_lines_are_strict_json(artifacts, recording):
         json.loads(line, parse_constant=refuse)
 
 
+@pytest.mark.slow
 def test_a_bag_in_a_bop_csv_and_a_pose_bag_out(artifacts, recording, from_sequence, tmp_path):
     out_bag, csv = tmp_path / "poses", tmp_path / "result.csv"
     # the overrides after --frames: split off its list
@@ -183,6 +187,7 @@ def test_a_bag_in_a_bop_csv_and_a_pose_bag_out(artifacts, recording, from_sequen
         np.testing.assert_allclose([float(v) for v in t_text.split()], 1000.0 * poses[k][:3, 3], rtol=1e-15)  # mm
 
 
+@pytest.mark.slow
 def test_the_track_is_drawn_with_plot(capsys, artifacts, recording, tmp_path):
     png = tmp_path / "track.png"
     code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(recording["sequence"]), "--artifacts",
@@ -194,6 +199,7 @@ def test_the_track_is_drawn_with_plot(capsys, artifacts, recording, tmp_path):
     assert (int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")) == (750, 620)
 
 
+@pytest.mark.slow
 def test_fixed_sensor_poses_from_a_file(artifacts, recording):
     """A bag of frame 0 three times: its sensor poses from a file (--poses) or from TF (--frames) give the same
     track, whose first frame is the sequence's first."""
@@ -236,6 +242,7 @@ def test_usage_errors_exit_2(capsys, recording, argv, message):
      ({"track.hypotheses": "0"}, "hypotheses"),
      ({"rank.refine": "false"}, "tracking refines the last pose: it needs rank.refine")],
 )
+@pytest.mark.slow
 def test_errors_are_one_line_and_exit_2(capsys, artifacts, recording, tmp_path, change, message):
     options = {"--object": OBJECT, "--sequence": str(recording["sequence"]), "--artifacts": str(artifacts)}
     overrides = dict(item.split("=") for item in BASELINE)
@@ -253,6 +260,7 @@ def test_errors_are_one_line_and_exit_2(capsys, artifacts, recording, tmp_path, 
 
 @pytest.mark.parametrize("text,message", [(None, "not found"),
                                           ("0 0 0 1 0 0 0\n1 2\n", "line 2")])
+@pytest.mark.slow
 def test_a_bad_poses_file_is_one_error_line(capsys, artifacts, recording, tmp_path, text, message):
     path = tmp_path / "poses.txt"
     if text is not None:
@@ -263,6 +271,7 @@ def test_a_bad_poses_file_is_one_error_line(capsys, artifacts, recording, tmp_pa
     assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
 
 
+@pytest.mark.slow
 def test_bench_track_times_the_sequences_artifact(capsys, artifacts, recording, tmp_path):
     """``tactile6d bench track`` on a sequences artifact of one sequence (the recording's): a line for the
     sequence, then the JSON figures over its F frames, the first a re-detection."""

@@ -103,6 +103,7 @@ def tracked(world, estimator):
     return frames, last
 
 
+@pytest.mark.slow
 def test_a_sequence_is_tracked_within_5_mm(world, tracked):
     """Measured on this sequence: the tracked centre is 0.4-1.2 mm from the true one on every frame (single-shot
     estimates of every third frame: 0.7-3.4 mm). 5 mm leaves room for the tracker's tuning and still catches a
@@ -131,6 +132,7 @@ def test_a_sequence_is_tracked_within_5_mm(world, tracked):
     np.testing.assert_array_equal(last, frames[-1].pose)
 
 
+@pytest.mark.slow
 def test_touching_is_what_the_images_show(world, tracked):
     """While one sensor is lifted (3 mm off, its image the no-contact one) only the two others touch; on the
     lift's ramps the gel may still be pressed a few um, which no image shows, so those frames are left out."""
@@ -146,6 +148,7 @@ def test_touching_is_what_the_images_show(world, tracked):
     assert any(frames[t].mode == "update" for t in lifted), [frames[t].mode for t in lifted]
 
 
+@pytest.mark.slow
 def test_a_frame_with_a_lifted_sensor_is_estimated_from_the_two_that_touch(world, estimator):
     """Single-shot, the lifted sensor (3 mm off, its image the no-contact one) is left out of selection and fit:
     1.1-1.7 mm from the true centre on both sequences' lifted frames. Its landmark taken for a contact, as before,
@@ -164,6 +167,7 @@ def test_a_frame_with_a_lifted_sensor_is_estimated_from_the_two_that_touch(world
             assert error < 0.0025, (q, t, error)
 
 
+@pytest.mark.slow
 def test_re_detections_wait_while_a_sensor_is_lifted(world, estimator):
     """No hypothesis passes a render-and-compare check of 0, so every frame asks for a re-detection; while the
     lifted sensor shows no contact, the contacts still fitting, the last pose is held instead (reason ``lift``,
@@ -184,6 +188,7 @@ def test_re_detections_wait_while_a_sensor_is_lifted(world, estimator):
                 assert (f.mode, f.reason, f.fit_ok) == ("redetect", "fit", True), (t, f.mode, f.reason)
 
 
+@pytest.mark.slow
 def test_a_periodic_re_detection_waits_until_the_lifted_sensor_touches_again(world, estimator):
     seqs = world["seqs"]
     with Tracker(estimator, track_settings(redetect_every=1)) as tracker:
@@ -195,6 +200,7 @@ def test_a_periodic_re_detection_waits_until_the_lifted_sensor_touches_again(wor
     assert (frames[after].mode, frames[after].reason) == ("redetect", "periodic")
 
 
+@pytest.mark.slow
 def test_a_3_cm_jump_is_re_detected_and_recovered(world, estimator):
     """The whole grasp, object and sensors, jumps 3 cm in the world after frame 9 (the images stay the same):
     the last pose no longer fits the contacts, the frame is re-detected, and the track is back within 1 cm."""
@@ -211,6 +217,7 @@ def test_a_3_cm_jump_is_re_detected_and_recovered(world, estimator):
     assert errors[jump:jump + 6].min() < 0.01 and errors[jump + 5:].max() < 0.01, np.round(1e3 * errors, 1)
 
 
+@pytest.mark.slow
 def test_another_grasp_of_the_object_is_recovered(world, estimator):
     """The stream switches to another sequence (the object elsewhere, in another grasp) at frame 10."""
     seqs = world["seqs"]
@@ -237,6 +244,7 @@ def lifted_frame(world, q: int, t: int):
     return seqs.T_world_sensors[q, t] @ BACK_5MM, np.stack([r.image for r in results])
 
 
+@pytest.mark.slow
 def test_a_frame_without_contact_holds_the_pose(world, estimator):
     seqs = world["seqs"]
     T_lifted, images_lifted = lifted_frame(world, 0, 8)
@@ -255,6 +263,7 @@ def test_a_frame_without_contact_holds_the_pose(world, estimator):
     assert max(errors) < 0.005, errors
 
 
+@pytest.mark.slow
 def test_no_pose_before_any_contact(world, estimator):
     """A stream that starts with the sensors lifted has nothing to estimate from: no pose (NaN) until a frame
     shows contact (TrackedFrame: pose NaN before any pose was found; a frame without contact holds)."""
@@ -268,6 +277,7 @@ def test_no_pose_before_any_contact(world, estimator):
     assert then.mode == "redetect" and then.reason == "start"
 
 
+@pytest.mark.slow
 def test_requested_re_detection_and_reset(world, estimator):
     seqs = world["seqs"]
     T, images = seqs.T_world_sensors[0], seqs.images[0]
@@ -300,6 +310,7 @@ def re_detection_gaps(frames: list[TrackedFrame]) -> list[tuple[int, int, str]]:
     return out
 
 
+@pytest.mark.slow
 def test_redetect_every_n_re_detects_every_nth_frame(world, estimator):
     """track.redetect_every: 'the frame is also estimated from scratch this often': with 4, frames 4, 8, 12, at a
     fixed period that no frame goes longer without; with 0, never periodically."""
@@ -318,6 +329,7 @@ def test_redetect_every_n_re_detects_every_nth_frame(world, estimator):
 
 
 @pytest.mark.parametrize("light_every", [4, 0])
+@pytest.mark.slow
 def test_a_re_detection_is_the_single_shot_estimate_of_the_frame_as_given(world, estimator, light_every):
     """A re-detected frame is estimated as ``Estimator.estimate`` estimates its images as given: whether the
     tracker fitted that frame's light itself and hands its reading on (light_every = redetect_every) or not
@@ -337,6 +349,7 @@ def test_a_re_detection_is_the_single_shot_estimate_of_the_frame_as_given(world,
         assert frames[k].estimate.light is not None and len(frames[k].estimate.light) == 3
 
 
+@pytest.mark.slow
 def test_a_frame_is_ambiguous_when_a_far_pose_followed_has_about_the_same_evidence(world):
     """The single-shot rule on the poses followed: another pose more than 0.75 cm (ADI) away whose evidence is
     within the confidence model's ambiguity_ratio (25 % here) of the reported one's."""
@@ -359,12 +372,14 @@ def test_a_frame_is_ambiguous_when_a_far_pose_followed_has_about_the_same_eviden
         assert not ambiguous((T, 1.0e-3), (far, 1.0e-3))
 
 
+@pytest.mark.slow
 def test_each_frame_says_whether_it_is_ambiguous(tracked):
     frames, _ = tracked
     assert all(f.ambiguous is False for f in frames)  # this estimator has no confidence model
     assert frames[0].to_dict()["ambiguous"] is False
 
 
+@pytest.mark.slow
 def test_an_update_never_penetrates_a_sensor_beyond_the_limit(world):
     """Sensor poses off by 3 mm / 3 deg per axis (twice a hand's default), an estimator that expects 0.5 mm /
     0.5 deg and no margin: updated poses press into the sensors. Each update stays within the limit the last
@@ -397,6 +412,7 @@ def test_an_update_never_penetrates_a_sensor_beyond_the_limit(world):
     assert np.any(depths[updates] > limits[updates]), np.round(1e3 * np.stack([depths, limits]), 2)
 
 
+@pytest.mark.slow
 def test_settings_from_the_config():
     cfg = compose_config()
     settings = TrackSettings.from_cfg(cfg.track)
@@ -416,11 +432,13 @@ def test_settings_from_the_config():
                                        ("threads", 0), ("max_residual", -0.001), ("max_agreement", -1.0),
                                        ("penetration_margin", -0.001), ("redetect_every", -1), ("light_every", -1),
                                        ("lift_wait", -1), ("read_ahead", -1)])
+@pytest.mark.slow
 def test_bad_settings_are_refused(key, value):
     with pytest.raises(ConfigError, match=key):
         TrackSettings.from_cfg(compose_config([f"track.{key}={value}"]).track)
 
 
+@pytest.mark.slow
 def test_a_tracker_needs_the_refinement(world, estimator):
     unrefined = estimator.with_settings(Settings.from_cfg(compose_config(OVERRIDES + ["rank.refine=false"])))
     with pytest.raises(InputError, match="rank.refine"):
@@ -452,6 +470,7 @@ def a_stream(world, n_frames=20):
 
 
 @pytest.mark.parametrize("read_ahead", [2, 0])
+@pytest.mark.slow
 def test_tracking_a_stream_gives_the_answers_of_update_frame_by_frame(world, estimator, read_ahead):
     """Tracker.track reads each frame's patches in reader processes while the frame before is followed: the same
     answers as update(), bit for bit, through periodic re-detections (which refit the light and make the frame
@@ -469,6 +488,7 @@ def test_tracking_a_stream_gives_the_answers_of_update_frame_by_frame(world, est
     same_answers(tracked, one_by_one)
 
 
+@pytest.mark.slow
 def test_a_reader_serves_several_trackers_and_frames_may_carry_their_backgrounds(world, estimator):
     from tactile6d.perception.patch_reader import PatchReader
 
@@ -483,6 +503,7 @@ def test_a_reader_serves_several_trackers_and_frames_may_carry_their_backgrounds
         assert reader._pool is not None  # the caller's reader stays open for the next tracker
 
 
+@pytest.mark.slow
 def test_a_bad_frame_in_a_stream_is_raised_after_the_frame_before_is_answered(world, estimator):
     stream = a_stream(world, 4)
     bad = (stream[3][0], stream[3][1][..., 0])  # grayscale planes, not RGB images

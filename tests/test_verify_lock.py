@@ -365,6 +365,7 @@ def test_digests_compare_another_run_without_its_files(repo, built_repo, tmp_pat
     assert "make: out/data.json: not the version dvc.lock records" in out
 
 
+@pytest.mark.slow
 def test_committed_digests_are_those_of_dvc_lock():
     """reports/output_digests.json is written with dvc.lock (make reproduce) and must record the same outs at
     the same md5: after a partial `dvc repro`, refresh it with the command of this message."""
