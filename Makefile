@@ -30,13 +30,11 @@ $(VENV)/.installed: pyproject.toml
 install: $(VENV)/.installed
 
 # Both cores by default (pytest-xdist; loadfile keeps a file's tests on one worker, so a module's fixtures
-# are built once): about half the time of one worker. TEST_WORKERS=1 runs the suite in one worker. The files
-# are handed out longest first as tests/conftest.py orders them (tests/durations.json); xdist's own reorder,
-# by number of tests, would put a long file of few tests last.
+# are built once): about half the time of one worker. TEST_WORKERS=1 runs the suite in one worker.
 TEST_WORKERS ?= 2
 
 test: install
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The target times itself, install included: make expands REPRODUCE_STARTED (`:=`) as it reads this file,
 # before it builds the install prerequisite; record_reproduce_time.py writes artifacts/times/make_reproduce.json

@@ -1,4 +1,3 @@
-import json
 import os
 from pathlib import Path
 
@@ -6,21 +5,11 @@ import pytest
 from hypothesis import settings
 
 REPO = Path(__file__).resolve().parent.parent
-DURATIONS = REPO / "tests" / "durations.json"  # s per test file, scripts/test_durations.py
 
 # The property tests check results, not speed: hypothesis's default deadline (200 ms an example) failed
 # test_symmetric_to_eigen_matches_eigh on a busy machine (2026-12-02), which the suite must pass on.
 settings.register_profile("tactile6d", deadline=None)
 settings.load_profile("tactile6d")
-
-
-def pytest_collection_modifyitems(config, items):
-    """The longest files first (their tests' order within kept), by tests/durations.json
-    (``scripts/test_durations.py``); files it does not list after those it does. ``make test`` gives whole
-    files to its two workers in this order (pytest-xdist ``--dist loadfile --no-loadscope-reorder``), and a
-    long file handed out last would run alone at the end."""
-    seconds = json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
-    items.sort(key=lambda item: -seconds.get(Path(os.path.relpath(item.path, REPO)).as_posix(), 0.0))
 
 
 def find_data_dir() -> Path | None:
