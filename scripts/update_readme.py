@@ -7,9 +7,9 @@ hand) the time sentence is left as it is.
 
 The headline is the page's first line (when and where it was generated) and the sections named in
 ``HEADLINE`` (the test set, off-axis, the real set-ups, the confidence, identification, your own objects,
-tracking, and the time of each stage of the run); the other
-sections (per object, validation, sensor count, ablation, autoencoder, scenes)
-stay on reports/results.md, which the README links to, so that the README stays short.
+tracking); the other sections (per object, validation, sensor count, ablation, autoencoder, scenes, the
+time of each stage of the run) stay on reports/results.md, which the README links to, so that the README
+stays short.
 """
 
 from __future__ import annotations
@@ -32,8 +32,7 @@ HEADLINE = ("The paper's 40 triplets (test set), L = 3",
             "Confidence: can an estimate be trusted?",
             "Which object: identification over the library",
             "Your own objects: meshes tactile6d never saw (generated)",
-            "Tracking: following the object over frames (generated sequences)",
-            "Stage times")
+            "Tracking: following the object over frames (generated sequences)")
 
 
 def split_sections(page: str) -> tuple[str, dict[str, str]]:

@@ -61,8 +61,8 @@ def test_the_readme_gets_the_headline_sections_and_a_link_to_the_rest():
     assert "| a | b |" in body and "](reports/figures/x.png)" in body and "| e |" in body and "| r |" in body
     assert "](reports/figures/reliability.png)" in body and "| o |" in body
     assert "](reports/figures/tracking_error.png)" in body
-    assert "| c |" not in body and "| d |" not in body and "| stage | seconds |" in body
-    assert "on [reports/results.md](reports/results.md): Per object, Ablation." in body
+    assert "| c |" not in body and "| d |" not in body and "| stage | seconds |" not in body
+    assert "on [reports/results.md](reports/results.md): Per object, Ablation, Stage times." in body
     assert body.index("The paper's 40") < body.index("Off-axis")
 
 
