@@ -4,7 +4,7 @@
 
 Estimates every scene of the sets with the default estimator (as stage rank does, images and each sensor's
 no-contact image) and records, for each of the ``rank.candidates`` candidates that ranking re-scores, the
-terms of its score (``tactile6d.estimation.rank.rank``): surface loss ``d + refine_normal_weight * a``,
+terms of its score (``tactile6d.estimation.rank.rank``): surface loss ``d + w_n * a`` (``RankSettings.surface_normal_weight``),
 penetration cost, ``pose_correction_weight`` x the sensor corrections' cost and ``agreement_weight`` x the
 render-and-compare cost. For each scene whose winner is more than ``--wrong-cm`` from the true position, it
 prints the candidate nearest the truth, its place in the ranking and by how much each term favoured the
@@ -74,14 +74,20 @@ class Recorder:
             setattr(owner, name, original)
 
 
-def scene_terms(last: dict, rank_cfg) -> dict[str, np.ndarray]:
+def normal_weight_of(estimator: Estimator, contacts) -> float:
+    """m/rad: the weight the ranking gave these contacts' normals (``RankSettings.surface_normal_weight``)."""
+    settings = estimator.settings.rank
+    return settings.surface_normal_weight(rank_module.fits_patch_points(contacts, settings))
+
+
+def scene_terms(last: dict, rank_cfg, normal_weight: float) -> dict[str, np.ndarray]:
     """The recorded calls of one estimate -> each re-scored candidate's weighted score terms (m), in the
-    candidates' order."""
+    candidates' order; normal_weight (m/rad) that of ``normal_weight_of``."""
     distance, angle = last["surface"]
     n = len(distance)
     zero = np.zeros(n)
     return {
-        "surface": distance + float(rank_cfg.refine_normal_weight) * angle,
+        "surface": distance + float(normal_weight) * angle,
         "penetration": np.asarray(last["penetration"][-1]),  # the last call scores the refined candidates
         "correction": float(rank_cfg.pose_correction_weight) * np.asarray(last.get("correction", zero)),
         "agreement": float(rank_cfg.agreement_weight) * np.asarray(last.get("agreement", zero)),
@@ -94,7 +100,8 @@ def rescored_terms(estimator: Estimator, T_world_sensors: np.ndarray, pose: np.n
     refined pose (4, 4))."""
     with Recorder() as recorder:
         ranked = estimator.rank(T_world_sensors, np.asarray(pose)[None], np.zeros(1), contacts)
-    return {t: float(v[0]) for t, v in scene_terms(recorder.last, rank_cfg).items()}, ranked.poses[0]
+    terms = scene_terms(recorder.last, rank_cfg, normal_weight_of(estimator, contacts))
+    return {t: float(v[0]) for t, v in terms.items()}, ranked.poses[0]
 
 
 def favoured(differences: list[dict[str, float]]) -> str:
@@ -128,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
             T = scenes["T_world_sensors"][s]
             with Recorder() as recorder:
                 estimate = estimators[obj].estimate(T, scenes["images"][s], scene_backgrounds(scenes, s))
-            terms = scene_terms(recorder.last, cfg.rank)
+            terms = scene_terms(recorder.last, cfg.rank, normal_weight_of(estimators[obj], estimate.contacts))
             if args.against_truth:
                 truth = np.asarray(scenes["T_world_object"][s])
                 mine, _ = rescored_terms(estimators[obj], T, estimate.best, estimate.contacts, cfg.rank)

@@ -11,11 +11,11 @@ rank_terms = load_script("rank_terms")
 
 
 def test_the_terms_are_weighted_as_rank_scores_them():
-    rank_cfg = OmegaConf.create({"refine_normal_weight": 0.01, "pose_correction_weight": 2.0, "agreement_weight": 0.5})
+    rank_cfg = OmegaConf.create({"pose_correction_weight": 2.0, "agreement_weight": 0.5})
     last = {"surface": (np.array([1e-3, 2e-3]), np.array([0.1, 0.0])),
             "penetration": [np.array([9.0, 9.0]), np.array([0.0, 4e-4])],  # the last call: the refined candidates
             "correction": np.array([1e-4, 0.0]), "agreement": np.array([0.0, 2e-3])}
-    terms = rank_terms.scene_terms(last, rank_cfg)
+    terms = rank_terms.scene_terms(last, rank_cfg, normal_weight=0.01)
     np.testing.assert_allclose(terms["surface"], [2e-3, 2e-3])
     np.testing.assert_allclose(terms["penetration"], [0.0, 4e-4])
     np.testing.assert_allclose(terms["correction"], [2e-4, 0.0])

@@ -226,6 +226,7 @@ class RankSettings(_Section):
     refine: bool
     refine_iterations: int
     refine_normal_weight: float
+    refine_patch_normal_weight: float
     refine_offset: float
     refine_patch_points: int
     refine_patch_weight: float
@@ -245,8 +246,8 @@ class RankSettings(_Section):
             raise ConfigError(f"rank.top_k and rank.batch must be >= 1, got {self.top_k}, {self.batch}")
         if self.rescores and self.candidates < self.top_k:
             raise ConfigError(f"rank.candidates ({self.candidates}) must be >= rank.top_k ({self.top_k})")
-        if self.refine and (self.refine_iterations < 1 or self.refine_normal_weight < 0):
-            raise ConfigError("rank.refine needs refine_iterations >= 1 and refine_normal_weight >= 0")
+        if self.refine and (self.refine_iterations < 1 or min(self.refine_normal_weight, self.refine_patch_normal_weight) < 0):
+            raise ConfigError("rank.refine needs refine_iterations >= 1 and refine_normal_weight, refine_patch_normal_weight >= 0")
         if self.refine_patch_points < 0 or self.refine_patch_weight < 0:
             raise ConfigError(f"rank.refine_patch_points and rank.refine_patch_weight must be >= 0, got "
                               f"{self.refine_patch_points}, {self.refine_patch_weight}")
@@ -266,6 +267,11 @@ class RankSettings(_Section):
     def uses_agreement(self) -> bool:
         """Whether render-and-compare re-scores the candidates (where the contacts were read from images)."""
         return self.agreement_weight > 0
+
+    def surface_normal_weight(self, patch_points: bool) -> float:
+        """m/rad: the contact normals' weight in the refinement and its score, ``refine_patch_normal_weight``
+        where the patches' points are fitted too (``patch_points``), else ``refine_normal_weight``."""
+        return float(self.refine_patch_normal_weight if patch_points else self.refine_normal_weight)
 
     @property
     def rescores(self) -> bool:

@@ -190,9 +190,10 @@ def rank(
     (neither is in the paper):
 
     - ``refine`` (``tactile6d.estimation.refine``): each pose is refined against ``surface`` (the object's
-      ``surface_sampling.SurfaceSamples``, required then) and scored ``d + refine_normal_weight * a + deepest
+      ``surface_sampling.SurfaceSamples``, required then) and scored ``d + w_n * a + deepest
       penetration``, d and a the refined pose's mean point-to-plane residual (m) and normal angle (rad)
-      (``refine.surface_losses``); ``losses`` of the result are then ``d + refine_normal_weight * a``.
+      (``refine.surface_losses``), w_n the normals' weight (``RankSettings.surface_normal_weight``: 0 by default
+      where the patches' points are fitted); ``losses`` of the result are then ``d + w_n * a``.
       With ``refine_patch_points`` > 0 and observed patches, that many points of each patch's
       pressed gel join the fit (``Contacts.patch_points``), each sensor's together weighing
       ``refine_patch_weight`` times its contact point.
@@ -247,7 +248,7 @@ def rank(
 class RefinedScores:
     """Candidates refined against the touching sensors' contacts and scored term by term (``refine_and_score``).
 
-    poses (P, 4, 4) the refined ``T_world_object``; scores (P,) m; losses (P,) m, ``d + refine_normal_weight * a``;
+    poses (P, 4, 4) the refined ``T_world_object``; scores (P,) m; losses (P,) m, ``d + w_n * a`` (``rank``);
     distance (P,) m, d alone (the mean point-to-plane residual); depths (P, L) m, each sensor's penetration as
     scored (through its corrected pose when it touches and the sensors are corrected); agreement (P,), the
     render-and-compare cost before its weight (0 when not computed).
@@ -268,7 +269,7 @@ def refine_and_score(model: collision.PenetrationModel, surface, mesh, poses: np
     Each pose is refined against the touching sensors' contacts and patches (``refine``; with the sensors'
     expected error, each touching sensor's pose corrected beside it, ``n_iterations`` steps; with
     ``refine_free_weight``, also kept off the gel the patches leave untouched) and scored (``score_refined``) through
-    every sensor: ``d + refine_normal_weight * a + penetration_cost(depths) + pose_correction_weight *
+    every sensor: ``d + w_n * a + penetration_cost(depths) + pose_correction_weight *
     corrections``, plus ``agreement_weight`` times render-and-compare when ``mesh`` is given and the contacts
     hold observed patches (a sensor whose image shows no contact pays for a pose that presses it). surface: the
     object's surface samples; mesh: its mesh, or None to leave render-and-compare out.
@@ -300,12 +301,19 @@ def refine_and_score(model: collision.PenetrationModel, surface, mesh, poses: np
 
 def touching_fit(surface, contacts: Contacts, settings: RankSettings) -> tuple[refinement.SurfaceFit, Contacts, np.ndarray]:
     """What the refinement fits: the ``SurfaceFit`` of the sensors the object touches (``Contacts.touching``),
-    their contacts, and their indices (K,) among all sensors."""
+    their contacts, and their indices (K,) among all sensors. The contact normals weigh
+    ``settings.surface_normal_weight``: less, or nothing, where the patches' points are fitted beside them."""
     on = np.flatnonzero(contacts.touching)
     touched = contacts if len(on) == len(contacts.points) else contacts.of_sensors(on)
-    fit = refinement.SurfaceFit(surface, touched.points, touched.normals, float(settings.refine_normal_weight),
+    normal_weight = settings.surface_normal_weight(fits_patch_points(contacts, settings))
+    fit = refinement.SurfaceFit(surface, touched.points, touched.normals, normal_weight,
                                 touched.offsets(settings.refine_offset))
     return fit, touched, on
+
+
+def fits_patch_points(contacts: Contacts, settings: RankSettings) -> bool:
+    """Whether the refinement fits the observed patches' points beside the contact points."""
+    return bool(contacts.observed and settings.refine_patch_points > 0)
 
 
 def _per_sensor_weights(owners: np.ndarray, n_sensors: int, weight: float) -> np.ndarray:
