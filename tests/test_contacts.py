@@ -130,7 +130,7 @@ def test_selection_fit_and_refinement_leave_out_a_sensor_that_does_not_touch(wor
 def test_the_normals_weigh_nothing_where_the_patches_points_are_fitted(world):
     """By default the contact normals weigh ``rank.refine_patch_normal_weight`` (0) in the refinement and its score
     where the observed patches' points join the fit, and ``rank.refine_normal_weight`` (0.01 m/rad) where they do
-    not: landmark contacts, or no patch points."""
+    not: landmark contacts, images none of which shows contact, or no patch points."""
     e = make_world_estimator(world)
     st = e.settings.rank
     assert (st.refine_patch_normal_weight, st.refine_normal_weight) == (0.0, 0.01)
@@ -140,6 +140,10 @@ def test_the_normals_weigh_nothing_where_the_patches_points_are_fitted(world):
     assert rank_step.touching_fit(e.surface, landmarks, st)[0].normal_weight == 0.01
     no_points = replace(st, refine_patch_points=0)
     assert rank_step.touching_fit(e.surface, observed, no_points)[0].normal_weight == 0.01
+    # Patches observed but none shows contact: every sensor keeps its landmark, no patch point is fitted.
+    no_contact = replace(observed, from_patch=np.zeros(3, dtype=bool))
+    assert no_contact.observed and len(no_contact.patch_points(np.tile(np.eye(4), (3, 1, 1)), 8)[0]) == 0
+    assert rank_step.touching_fit(e.surface, no_contact, st)[0].normal_weight == 0.01
     with pytest.raises(ConfigError, match="refine_patch_normal_weight"):
         replace(st, refine_patch_normal_weight=-0.01)
 

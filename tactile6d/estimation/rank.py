@@ -312,8 +312,10 @@ def touching_fit(surface, contacts: Contacts, settings: RankSettings) -> tuple[r
 
 
 def fits_patch_points(contacts: Contacts, settings: RankSettings) -> bool:
-    """Whether the refinement fits the observed patches' points beside the contact points."""
-    return bool(contacts.observed and settings.refine_patch_points > 0)
+    """Whether the refinement fits the observed patches' points beside the contact points: observed patches, some
+    sensor's point read from its image (where no image shows contact every sensor keeps its landmark and no patch
+    point is fitted), and ``refine_patch_points`` > 0."""
+    return bool(contacts.observed and contacts.from_patch.any() and settings.refine_patch_points > 0)
 
 
 def _per_sensor_weights(owners: np.ndarray, n_sensors: int, weight: float) -> np.ndarray:
