@@ -11,6 +11,7 @@ the images, which the tracker needs (which sensors touch, render-and-compare).
 """
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -373,6 +374,24 @@ def test_a_frame_is_ambiguous_when_a_far_pose_followed_has_about_the_same_eviden
 
 
 @pytest.mark.slow
+def test_a_re_detection_offers_the_poses_its_rival_ratio_admits(world):
+    """What a re-detection gives the tracker to follow: ``Estimate.distinct`` (the confidence model's
+    ambiguity_ratio) by default; with ``track.rival_ratio`` the best and every pose more than 0.75 cm (ADI) away
+    whose score is within that ratio of the best's."""
+    estimator = make_estimator(world)
+    T = g.make_pose(np.eye(3), [0.3, 0.0, 0.1])
+    near = T @ g.make_pose(np.eye(3), [0.002, 0.0, 0.0])
+    far, farther = T @ g.make_pose(np.eye(3), [0.02, 0.0, 0.0]), T @ g.make_pose(np.eye(3), [0.0, 0.03, 0.0])
+    ranked = SimpleNamespace(poses=np.stack([T, near, far, farther]), scores=np.array([1.0, 1.0, 1.2, 1.4]) * 1e-3,
+                             distinct=np.array([0, 2]))
+    for rival_ratio, followed in ((None, [0, 2]), (0.1, [0]), (0.3, [0, 2]), (0.5, [0, 2, 3])):
+        with Tracker(estimator, track_settings(rival_ratio=rival_ratio)) as tracker:
+            assert [int(i) for i in tracker._to_follow(ranked)] == followed, rival_ratio
+    with Tracker(estimator, track_settings()) as tracker:  # no confidence model, no rival ratio: the best alone
+        assert tracker._to_follow(SimpleNamespace(poses=ranked.poses, scores=ranked.scores, distinct=None)) == [0]
+
+
+@pytest.mark.slow
 def test_each_frame_says_whether_it_is_ambiguous(tracked):
     frames, _ = tracked
     assert all(f.ambiguous is False for f in frames)  # this estimator has no confidence model
@@ -419,7 +438,7 @@ def test_an_update_never_penetrates_a_sensor_beyond_the_limit(world):
 def test_settings_from_the_config():
     cfg = compose_config()
     settings = TrackSettings.from_cfg(cfg.track)
-    kinds = {"int": (int,), "float": (int, float), "bool": (bool,)}
+    kinds = {"int": (int,), "float": (int, float), "bool": (bool,), "float | None": (int, float, type(None))}
     for name, spec in TrackSettings.__dataclass_fields__.items():  # the types declared
         value = getattr(settings, name)
         assert isinstance(value, kinds[spec.type]) and (spec.type == "bool") == isinstance(value, bool), name
@@ -434,7 +453,7 @@ def test_settings_from_the_config():
 @pytest.mark.parametrize("key,value", [("hypotheses", 0), ("evidence_frames", 0), ("refine_iterations", 0),
                                        ("threads", 0), ("max_residual", -0.001), ("max_agreement", -1.0),
                                        ("penetration_margin", -0.001), ("redetect_every", -1), ("light_every", -1),
-                                       ("lift_wait", -1), ("read_ahead", -1)])
+                                       ("lift_wait", -1), ("read_ahead", -1), ("rival_ratio", -0.1)])
 @pytest.mark.slow
 def test_bad_settings_are_refused(key, value):
     with pytest.raises(ConfigError, match=key):

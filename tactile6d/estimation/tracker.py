@@ -97,6 +97,7 @@ class TrackSettings:
     light_every: int
     threads: int
     read_ahead: int
+    rival_ratio: float | None
 
     def __post_init__(self) -> None:
         if min(self.refine_iterations, self.threads, self.hypotheses, self.evidence_frames) < 1:
@@ -110,6 +111,9 @@ class TrackSettings:
             raise ConfigError("track.redetect_every and track.light_every must be >= 0 (0: never)")
         if self.lift_wait < 0:
             raise ConfigError(f"track.lift_wait must be >= 0 frames (0: no wait), got {self.lift_wait}")
+        if self.rival_ratio is not None and self.rival_ratio < 0:
+            raise ConfigError(f"track.rival_ratio must be >= 0 or null (the confidence's ambiguity_ratio), got "
+                              f"{self.rival_ratio}")
 
     @classmethod
     def from_cfg(cls, section: Mapping) -> TrackSettings:
@@ -480,7 +484,7 @@ class Tracker:
         if len(estimate.poses):
             # The poses that explain the contacts about equally well are all followed, until frames tell
             # them apart; without a confidence model, the best alone.
-            chosen = [0] if estimate.distinct is None else list(estimate.distinct)
+            chosen = self._to_follow(estimate)
             new = [_Hypothesis([estimate.poses[i]], float(estimate.scores[i])) for i in chosen]
             both = _merged((self._hypotheses if keep else []) + new, self.estimator.settings.rank)
             self._hypotheses = both[: self.settings.hypotheses]
@@ -490,6 +494,16 @@ class Tracker:
         penetration = float(estimate.penetrations[0].max()) if len(estimate.poses) else np.nan
         pose = self._hypotheses[self._leader()].poses[-1] if self._hypotheses else None
         return self._answer(pose, "redetect", reason, touching, np.nan, np.nan, penetration, True, start, estimate)
+
+    def _to_follow(self, estimate: Estimate) -> list[int]:
+        """Indices into ``estimate.poses`` (best first) of the poses a re-detection offers to follow: with
+        ``rival_ratio`` the best and every pose farther than 0.75 cm ADI from it whose score is within that ratio
+        of the best's (``confidence.distinct_poses``); without it, ``Estimate.distinct`` (the same rule at the
+        confidence model's ``ambiguity_ratio``; the best alone without a model)."""
+        if self.settings.rival_ratio is None:
+            return [0] if estimate.distinct is None else list(estimate.distinct)
+        distances = confidence.distances_from_best(self.estimator.spread_points, estimate.poses)
+        return list(confidence.distinct_poses(estimate.scores, distances, self.settings.rival_ratio))
 
     def _estimate_read(self, T: np.ndarray, aligned: np.ndarray, contacts: Contacts, backgrounds) -> Estimate:
         """``Estimator.estimate`` of a frame whose images were brought to their light by fits made this frame
