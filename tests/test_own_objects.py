@@ -18,8 +18,9 @@ from tactile6d.sim.mesh_import import MeshSource, own_objects
 
 BUNNY = Path(pybullet_data.getDataPath()) / "bunny.obj"  # about 2 x 1.4 x 1 file units: 10 cm as cm x 5
 OWN = [f"+own.bunny.mesh={BUNNY}", "+own.bunny.units=cm", "+own.bunny.scale=5"]
-# The weights stage calibrate_identify fitted in the full run of c841f0c (loss, penetration, agreement; 2026-12-06).
-WEIGHTS = "identify.weights=[1.7648,0.8652,9.5746]"
+# The weights stage calibrate_identify fitted in the run dvc.lock records (loss, penetration, agreement; 2026-12-06, the
+# stages from rank on re-run for ff88cff).
+WEIGHTS = "identify.weights=[3.4885,0.3917,8.6344]"
 
 
 @pytest.mark.slow
@@ -102,8 +103,10 @@ def test_a_packaged_mesh_is_estimated_within_a_centimetre_and_identified(tmp_pat
     metrics = json.loads(layout.metrics_file(root, "own").read_text())
     assert metrics["n_scenes"] == 2 and metrics["meshes"]["bunny"]["faces"] == 902
     assert metrics["estimate"]["average"]["pos_err_cm_top1"] < 1.0 and metrics["estimate"]["n_failed"] == 0
-    # Identified first in both scenes with the refinement of before 2026-12-06, in one of the two since (the contact
-    # normals out of it: docs/contact_patch.md); the three validation scenes above are identified right either way.
+    # Identified first in both scenes with the refinement of before 2026-12-06, in at least one of the two since (the
+    # contact normals out of it, the patch points weighing 3: docs/contact_patch.md) with the weights calibrate_identify
+    # fits for it (WEIGHTS; with those of the refinement before, in neither); the three validation scenes above are
+    # identified right either way.
     assert metrics["identify"]["objects"] == ["prim_box", "prim_cylinder", "bunny"] and metrics["identify"]["top1"] >= 0.5
 
 

@@ -405,10 +405,11 @@ def test_an_update_never_penetrates_a_sensor_beyond_the_limit(world):
     re-detection set, max(the ranking's allowance, its best pose's deepest penetration) + penetration_margin;
     with the margin at 1 m, the same frames are updated deeper than that, so the check is what keeps them out."""
     seqs = world["seqs"]
-    # The contact normals in the refinement beside the patch points (not the default since 2026-12-06, which
-    # presses these sensors no deeper than the limit even without the check) make updates press in.
+    # The contact normals in the refinement beside the patch points, which weigh as much as the contact point (not
+    # the defaults since 2026-12-06, which press these sensors no deeper than the limit even without the check),
+    # make updates press in.
     estimator = make_estimator(world, "sensors.pose_sigma_mm=0.5", "sensors.pose_sigma_deg=0.5",
-                               "rank.refine_patch_normal_weight=0.01")
+                               "rank.refine_patch_normal_weight=0.01", "rank.refine_patch_weight=1")
     allowance = estimator.settings.sensors.contact_sigma
     spec = replace(SPEC, pose_sigma_mm=3.0, pose_sigma_deg=3.0, jitter_mm=0.1, jitter_deg=0.1)
     errors, _, _ = sequences.kinematic_errors(spec, np.random.default_rng(5))
