@@ -128,13 +128,14 @@ def test_json_has_a_pose_per_frame_and_the_fit_terms(from_sequence):
     first = from_sequence[0]
     assert first["mode"] == "redetect" and first["reason"] == "start" and first["fit_ok"] is True
     for k, frame in enumerate(from_sequence):
-        assert {"frame", "stamp", "pose", "mode", "reason", "confidence", "ambiguous", "touching", "residual",
-                "agreement", "penetration", "fit_ok", "seconds"} <= set(frame)
+        assert {"frame", "stamp", "pose", "mode", "reason", "confidence", "ambiguous", "rivals", "touching",
+                "residual", "agreement", "penetration", "fit_ok", "seconds"} <= set(frame)
         assert frame["stamp"] == pytest.approx(k / FPS)
         pose = np.array(frame["pose"])
         assert pose.shape == (4, 4) and g.is_rotation(pose[:3, :3]) and np.array_equal(pose[3], [0, 0, 0, 1])
         assert frame["touching"] == [True, True, True]  # the baseline reads no image: every sensor touches
-        assert frame["confidence"] is None and frame["ambiguous"] is False and frame["seconds"] > 0
+        assert frame["confidence"] is None and frame["ambiguous"] is False and frame["rivals"] == []
+        assert frame["seconds"] > 0
         assert frame["reason"] in (None, "start", "request", "periodic", "fit")
     assert any(f["mode"] == "update" for f in from_sequence[1:])  # the track is followed, not re-estimated
 

@@ -353,24 +353,35 @@ def test_a_re_detection_is_the_single_shot_estimate_of_the_frame_as_given(world,
 @pytest.mark.slow
 def test_a_frame_is_ambiguous_when_a_far_pose_followed_has_about_the_same_evidence(world):
     """The single-shot rule on the poses followed: another pose more than 0.75 cm (ADI) away whose evidence is
-    within the confidence model's ambiguity_ratio (25 % here) of the reported one's."""
+    within the confidence model's ambiguity_ratio (25 % here) of the reported one's. Those poses are the
+    frame's rivals, the least evidence first; the frame is ambiguous when it has any."""
     estimator = make_estimator(world)
     estimator.confidence_model = confidence.ConfidenceModel(confidence.FEATURES, (0.0, 0.0), 0.0, (0.0, 0.0),
                                                             (1.0, 1.0), ambiguity_ratio=0.25)
     T = g.make_pose(np.eye(3), [0.3, 0.0, 0.1])
     far, near = T @ g.make_pose(np.eye(3), [0.02, 0.0, 0.0]), T @ g.make_pose(np.eye(3), [0.002, 0.0, 0.0])
+    farther = T @ g.make_pose(np.eye(3), [0.0, 0.03, 0.0])
     with Tracker(estimator, track_settings()) as tracker:
-        def ambiguous(*followed):
+        def rivals(*followed):
             tracker._hypotheses = [_Hypothesis([pose], evidence) for pose, evidence in followed]
-            return tracker._is_ambiguous()
+            return tracker._rival_poses()
 
-        assert ambiguous((T, 1.0e-3), (far, 1.2e-3))  # 2 cm away, 20 % worse: about as good
-        assert ambiguous((far, 1.2e-3), (T, 1.0e-3))  # whichever order they are followed in
-        assert not ambiguous((T, 1.0e-3), (far, 1.4e-3))  # 40 % worse
-        assert not ambiguous((T, 1.0e-3), (near, 1.0e-3))  # as good, but 2 mm away: the same pose
-        assert not ambiguous((T, 1.0e-3))
+        def same(poses, expected):
+            return poses.shape == (len(expected), 4, 4) and all(np.array_equal(p, e) for p, e in zip(poses, expected))
+
+        assert same(rivals((T, 1.0e-3), (far, 1.2e-3)), [far])  # 2 cm away, 20 % worse: about as good
+        assert same(rivals((far, 1.2e-3), (T, 1.0e-3)), [far])  # whichever order they are followed in
+        assert same(rivals((T, 1.0e-3), (farther, 1.1e-3), (far, 1.2e-3)), [farther, far])  # the least evidence first
+        assert same(rivals((far, 1.0e-3), (T, 1.2e-3)), [T])  # the leader is the one with the least evidence
+        assert same(rivals((T, 1.0e-3), (far, 1.4e-3)), [])  # 40 % worse
+        assert same(rivals((T, 1.0e-3), (near, 1.0e-3)), [])  # as good, but 2 mm away: the same pose
+        assert same(rivals((T, 1.0e-3)), [])
+        tracker._hypotheses = [_Hypothesis([T], 1.0e-3), _Hypothesis([far], 1.2e-3)]
+        tracker._rivals = tracker._rival_poses()  # as an update or a re-detection sets them
+        frame = tracker._answer(T, "update", None, np.ones(3, bool), 0.0, 0.0, 0.0, True, 0.0)
+        assert frame.ambiguous and same(frame.rivals, [far]) and frame.to_dict()["rivals"] == [far.tolist()]
         estimator.confidence_model = None  # without a model, as Estimate.ambiguous: never
-        assert not ambiguous((T, 1.0e-3), (far, 1.0e-3))
+        assert same(rivals((T, 1.0e-3), (far, 1.0e-3)), [])
 
 
 @pytest.mark.slow
@@ -394,8 +405,8 @@ def test_a_re_detection_offers_the_poses_its_rival_ratio_admits(world):
 @pytest.mark.slow
 def test_each_frame_says_whether_it_is_ambiguous(tracked):
     frames, _ = tracked
-    assert all(f.ambiguous is False for f in frames)  # this estimator has no confidence model
-    assert frames[0].to_dict()["ambiguous"] is False
+    assert all(f.ambiguous is False and f.rivals.shape == (0, 4, 4) for f in frames)  # no confidence model here
+    assert frames[0].to_dict()["ambiguous"] is False and frames[0].to_dict()["rivals"] == []
 
 
 @pytest.mark.slow

@@ -135,7 +135,8 @@ class TrackedFrame:
     re-detected (``start``, ``request``, ``periodic``, ``fit``), ``lift`` on such a hold, or None; confidence:
     the calibrated P(ADI < 1 cm) of the last re-detection (module docstring), None without a confidence model;
     ambiguous: whether another pose followed explains the frames about as well as the reported one (module
-    docstring; False without a confidence model);
+    docstring; False without a confidence model); rivals (R, 4, 4): those poses, ``T_world_object``, the least
+    evidence first (R = 0 unless ambiguous), so that a caller can keep them in view, or touch where they differ;
     touching (L,) bool: the sensors whose image shows contact; residual (m): mean point-to-plane residual
     of the touching sensors' contacts; agreement: render-and-compare cost (mean over sensors of 1 - mask
     IoU and the share of untouched gel pressed); penetration (m): the deepest sensor penetration, through
@@ -157,15 +158,17 @@ class TrackedFrame:
     fit_ok: bool
     seconds: float
     estimate: Estimate | None = field(default=None, repr=False)
+    rivals: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
 
     def to_dict(self) -> dict:
-        """JSON-ready: the pose as nested lists (None before any pose), the rest as numbers, None where NaN."""
+        """JSON-ready: the poses as nested lists (None before any pose), the rest as numbers, None where NaN."""
         return {
             "pose": self.pose.tolist() if np.isfinite(self.pose).all() else None,
             "mode": self.mode,
             "reason": self.reason,
             "confidence": self.confidence,
             "ambiguous": self.ambiguous,
+            "rivals": self.rivals.tolist(),
             "touching": self.touching.tolist(),
             "residual": _number(self.residual),
             "agreement": _number(self.agreement),
@@ -217,7 +220,7 @@ class Tracker:
         self._hypotheses: list[_Hypothesis] = []  # the poses followed, the one with the least evidence reported
         self._penetration_limit = np.inf  # m: the deepest penetration an updated pose may have
         self._confidence: float | None = None
-        self._ambiguous = False
+        self._rivals = np.zeros((0, 4, 4))  # the poses followed that make the frame ambiguous (_rival_poses)
         self._light: list[photometric.LightFit] | None = None
         self._frames_since_light = 0
         self._frames_since_redetect = 0
@@ -430,7 +433,7 @@ class Tracker:
         self._hypotheses = _merged(kept, self.estimator.settings.rank)
         if not self._hypotheses:
             return self._redetect(T, images, backgrounds, "fit", start)
-        self._ambiguous = self._is_ambiguous()
+        self._rivals = self._rival_poses()
         h = self._hypotheses[self._leader()]
         return self._answer(h.poses[-1], "update", None, touching, *h.terms, True, start)
 
@@ -438,18 +441,19 @@ class Tracker:
         """The hypothesis reported: the least evidence (running mean score)."""
         return int(np.argmin([h.evidence for h in self._hypotheses]))
 
-    def _is_ambiguous(self) -> bool:
-        """Whether hypotheses other than the reported one explain the frames about as well: the single-shot
-        rule (``confidence.distinct_poses`` with the model's ``ambiguity_ratio``) on the hypotheses' last
-        poses and evidence; False with one hypothesis or without a confidence model."""
+    def _rival_poses(self) -> np.ndarray:
+        """The last poses (R, 4, 4) of the hypotheses other than the reported one that explain the frames about
+        as well, the least evidence first: the single-shot rule (``confidence.distinct_poses`` with the
+        model's ``ambiguity_ratio``) on the hypotheses' last poses and evidence. Empty (R = 0) with one
+        hypothesis or without a confidence model; the frame is ambiguous when there are any."""
         model = self.estimator.confidence_model
         if model is None or len(self._hypotheses) < 2:
-            return False
+            return np.zeros((0, 4, 4))
         order = sorted(range(len(self._hypotheses)), key=lambda k: self._hypotheses[k].evidence)  # leader first
         poses = np.stack([self._hypotheses[k].poses[-1] for k in order])
         evidence = np.array([self._hypotheses[k].evidence for k in order])
         distances = confidence.distances_from_best(self.estimator.spread_points, poses)
-        return len(confidence.distinct_poses(evidence, distances, model.ambiguity_ratio)) > 1
+        return poses[confidence.distinct_poses(evidence, distances, model.ambiguity_ratio)[1:]]
 
     def _redetect(self, T: np.ndarray, images, backgrounds, reason: str, start: float, keep: bool = False,
                   read: tuple[np.ndarray, Contacts] | None = None) -> TrackedFrame:
@@ -488,7 +492,7 @@ class Tracker:
             new = [_Hypothesis([estimate.poses[i]], float(estimate.scores[i])) for i in chosen]
             both = _merged((self._hypotheses if keep else []) + new, self.estimator.settings.rank)
             self._hypotheses = both[: self.settings.hypotheses]
-            self._ambiguous = self._is_ambiguous()
+            self._rivals = self._rival_poses()
             self._penetration_limit = (max(self.estimator.settings.sensors.contact_sigma,
                                            float(estimate.penetrations[0].max())) + self.settings.penetration_margin)
         penetration = float(estimate.penetrations[0].max()) if len(estimate.poses) else np.nan
@@ -516,8 +520,9 @@ class Tracker:
                 estimate=None) -> TrackedFrame:
         pose = np.full((4, 4), np.nan) if pose is None else np.asarray(pose, dtype=np.float64)
         self._poses = (self._poses + [pose])[-2:]
-        return TrackedFrame(pose, mode, reason, self._confidence, self._ambiguous, touching, float(residual),
-                            float(agreement), float(penetration), fit_ok, time.perf_counter() - start, estimate)
+        return TrackedFrame(pose, mode, reason, self._confidence, len(self._rivals) > 0, touching, float(residual),
+                            float(agreement), float(penetration), fit_ok, time.perf_counter() - start, estimate,
+                            self._rivals.copy())
 
 
 @dataclass
