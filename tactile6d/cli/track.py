@@ -19,10 +19,10 @@ calibrate-sensors``) before the tracker sees them.
 Output: one line per frame on stdout: ``<frame> <stamp> <mode> x y z ax ay az angle <confidence>`` (mode
 ``redetect``, ``update`` or ``hold``; stamp and confidence ``-`` when unknown), or with ``--json`` one
 JSON object per frame (pose as a 4x4 matrix, mode, the re-detection's reason, confidence, whether it is
-ambiguous and the rival poses that make it so, which sensors touch, the fit terms, seconds). ``--bop FILE`` also writes a BOP result CSV
-(``scene_id`` from ``--scene-id``, ``im_id`` the frame, ``obj_id`` the object's YCB-Video id or ``--obj-id``,
-score the confidence, t in mm, time the frame's seconds); ``--out-bag PATH`` writes the poses as
-``geometry_msgs/PoseStamped`` (``--out-topic``). Frames without a pose yet are left out of both. ``--plot PNG``
+ambiguous and the rival poses that make it so, which sensors touch, the fit terms, seconds). ``--bop FILE``
+also writes a BOP result CSV (``scene_id`` from ``--scene-id``, ``im_id`` the frame, ``obj_id`` the object's
+YCB-Video id or ``--obj-id``, score the confidence, t in mm, time the frame's seconds); ``--out-bag PATH`` writes
+the poses as ``geometry_msgs/PoseStamped`` (``--out-topic``). Frames without a pose yet are left out of both. ``--plot PNG``
 draws the track over time (``tactile6d.evaluation.stream_figure``): the position and turn from the first pose, the
 re-detections, held and ambiguous frames, the sensors touching and the confidence.
 

@@ -136,7 +136,7 @@ class TrackedFrame:
     the calibrated P(ADI < 1 cm) of the last re-detection (module docstring), None without a confidence model;
     ambiguous: whether another pose followed explains the frames about as well as the reported one (module
     docstring; False without a confidence model); rivals (R, 4, 4): those poses, ``T_world_object``, the least
-    evidence first (R = 0 unless ambiguous), so that a caller can keep them in view, or touch where they differ;
+    evidence first (R = 0 unless ambiguous), so that a caller can keep them in view;
     touching (L,) bool: the sensors whose image shows contact; residual (m): mean point-to-plane residual
     of the touching sensors' contacts; agreement: render-and-compare cost (mean over sensors of 1 - mask
     IoU and the share of untouched gel pressed); penetration (m): the deepest sensor penetration, through
