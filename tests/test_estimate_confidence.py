@@ -18,7 +18,7 @@ from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ArtifactError
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_scene_dir, write_artifact
-from tactile6d.estimation import confidence
+from tactile6d.estimation import confidence, disambiguation
 from tactile6d.estimation import estimator as est
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 from tactile6d.sim.scenes import SceneSet
@@ -165,6 +165,31 @@ def test_the_command_prints_the_confidence_and_the_rivals(capsys, artifacts_with
 
 
 @pytest.mark.slow
+def test_the_command_suggests_one_more_touch(capsys, artifacts_with_model, scene):  # noqa: F811
+    """``--suggest-touch``: an ambiguous estimate's touch (disambiguation.touch_to_tell_apart on its distinct poses
+    and the sensors given) in the JSON and as a ``touch:`` line; ``touch`` null where the estimate is not
+    ambiguous (no model: never)."""
+    code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts_with_model), "--json",
+                         "--suggest-touch")
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["ambiguous"]
+    touch = result["touch"]
+    assert touch is not None and set(touch) == {"point", "normal", "T_world_sensor", "separation"}
+    assert np.linalg.norm(touch["normal"]) == pytest.approx(1.0) and touch["separation"] > 0
+    poses = np.array([d["pose"] for d in result["distinct_poses"]])
+    T, _ = read_scene_dir(scene)
+    box = est.Estimator.from_artifacts("prim_box", artifacts_with_model, compose_config(["select.method=baseline"]))
+    expected = disambiguation.touch_to_tell_apart(box.surface, poses, T)
+    np.testing.assert_allclose(touch["point"], expected.point, atol=1e-12)
+    code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts_with_model),
+                         "--suggest-touch")
+    assert code == 0, err
+    lines = [line for line in out.splitlines() if line.startswith("touch:")]
+    assert len(lines) == 1 and " ".join(f"{v:.4f}" for v in expected.point) in lines[0]
+
+
+@pytest.mark.slow
 def test_the_command_without_a_model_says_so_in_one_line(capsys, artifacts, scene):  # noqa: F811
     code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts))
     assert code == 0, err
@@ -173,6 +198,10 @@ def test_the_command_without_a_model_says_so_in_one_line(capsys, artifacts, scen
     code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts), "--json")
     result = json.loads(out)
     assert result["confidence"] is None and result["ambiguous"] is False and result["distinct_poses"] == []
+    assert "touch" not in result  # only with --suggest-touch
+    code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts), "--json",
+                         "--suggest-touch")
+    assert json.loads(out)["touch"] is None
 
 
 @pytest.mark.slow

@@ -31,8 +31,12 @@ poses as 4x4 matrices, their scores, losses and penetrations, the selection diag
 ``confidence`` (null without a model), ``ambiguous`` and ``distinct_poses`` (rank, pose and score of
 each pose that explains the contacts about equally well, the best first; empty without a model) and
 ``load_seconds`` (the time spent loading the object's artifacts for that scene, 0 once they are
-loaded). A progress bar goes to stderr when there are more than a few scenes and stderr is a
-terminal.
+loaded). With ``--suggest-touch``, an ambiguous estimate also says where one more touch would tell its poses
+apart (``disambiguation.touch_to_tell_apart``: a ``touch:`` line; in JSON ``touch``, null when the estimate is
+not ambiguous, else its ``point`` and ``normal`` (world; approach along minus the normal), the
+``T_world_sensor`` pressing there if the best pose is right and the ``separation`` (m) from the rivals'
+surfaces); after the touch, ``disambiguation.choose`` re-ranks the poses. A progress bar goes to stderr when
+there are more than a few scenes and stderr is a terminal.
 
 Errors: with one ``--scene``, any error ends the command with one ``error:`` line and exit status 2,
 as for a bad option, an unknown object or a bad config override in every case. With several scenes,
@@ -100,6 +104,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                              "that touch in different places); default: each scene's background_<i>.png, else "
                              "render.background")
     add_sensor_offsets_argument(parser, "poses_sensors.txt's poses")
+    parser.add_argument("--suggest-touch", action="store_true",
+                        help="when the estimate is ambiguous, also say where one more touch would tell its poses "
+                             "apart (docs/confidence.md)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
@@ -289,9 +296,10 @@ def confidence_lines(result: Estimate) -> list[str]:
     return lines
 
 
-def estimate_scene(scene: Path, name: str, cache: EstimatorCache) -> tuple[Estimate, float]:
-    """One scene's estimate and the seconds spent loading its object's artifacts for it; its notes and
-    warnings (``scene_backgrounds``, ``warnings_to_lines``) go to stderr."""
+def estimate_scene(scene: Path, name: str, cache: EstimatorCache, suggest_touch: bool = False):
+    """One scene's estimate, the seconds spent loading its object's artifacts for it and, with ``suggest_touch``
+    and an ambiguous estimate, where one more touch would tell its poses apart (``Touch``; else None); its notes
+    and warnings (``scene_backgrounds``, ``warnings_to_lines``) go to stderr."""
     T_world_sensors, images = read_scene_dir(scene)
     backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), cache.background is not None)
     if note:
@@ -300,10 +308,35 @@ def estimate_scene(scene: Path, name: str, cache: EstimatorCache) -> tuple[Estim
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnderdeterminedPoseWarning)
         warnings.simplefilter("always", photometric.LightWarning)
-        result = estimator.estimate(cache.sensor_poses(T_world_sensors), images, backgrounds)
+        T = cache.sensor_poses(T_world_sensors)
+        result = estimator.estimate(T, images, backgrounds)
     for line in warnings_to_lines(scene, caught):
         write(line, sys.stderr)
-    return result, load_seconds
+    touch = None
+    if suggest_touch and result.ambiguous:
+        from tactile6d.estimation.disambiguation import touch_to_tell_apart
+
+        touch = touch_to_tell_apart(estimator.surface, result.poses[result.distinct], T)
+    return result, load_seconds, touch
+
+
+def touch_line(touch) -> str:
+    """The ``touch:`` line of an ambiguous estimate (``--suggest-touch``)."""
+    if touch is None:
+        return "touch: none reachable that tells the poses apart"
+    point = " ".join(f"{v:.4f}" for v in touch.point)
+    normal = " ".join(f"{v:.3f}" for v in touch.normal)
+    return (f"touch: one more sensor at {point} (m), moved in along minus the normal {normal} until it meets the "
+            f"object, tells the poses apart (their surfaces {100 * touch.separation:.1f} cm apart there); then "
+            "disambiguation.choose")
+
+
+def touch_json(touch) -> dict | None:
+    """``--suggest-touch``'s JSON: the touch's point, normal, sensor pose and separation, or None."""
+    if touch is None:
+        return None
+    return {"point": touch.point.tolist(), "normal": touch.normal.tolist(),
+            "T_world_sensor": touch.T_world_sensor.tolist(), "separation": touch.separation}
 
 
 FROM_SCENES = "from-scenes"  # --background's word for "estimate each sensor's from the scenes' images"
@@ -357,17 +390,24 @@ def warnings_to_lines(scene: Path, caught: list) -> list[str]:
     return [f"warning: {scene}: {' '.join(str(w.message).split())}" for w in caught]
 
 
-def as_json(scene: Path, name: str, result: Estimate, cfg, load_seconds: float) -> str:
-    """One scene's result as one line of JSON."""
+def as_json(scene: Path, name: str, result: Estimate, cfg, load_seconds: float, suggest_touch: bool = False,
+            touch=None) -> str:
+    """One scene's result as one line of JSON; with ``suggest_touch``, its ``touch`` (``touch_json``)."""
     out = {"object": name, "scene": str(scene), "method": cfg.select.method, "solver": cfg.optimize.solver,
            "best": pose_to_line(result.best), **result.to_dict(), "load_seconds": load_seconds}
+    if suggest_touch:
+        out["touch"] = touch_json(touch)
     return json.dumps(out)
 
 
-def as_text(scene: Path, name: str, result: Estimate, cfg, load_seconds: float, header: bool) -> str:
-    """One scene's result as text: the best pose line first (after the header, when there is one)."""
+def as_text(scene: Path, name: str, result: Estimate, cfg, load_seconds: float, header: bool,
+            suggest_touch: bool = False, touch=None) -> str:
+    """One scene's result as text: the best pose line first (after the header, when there is one); with
+    ``suggest_touch`` and an ambiguous estimate, its ``touch:`` line."""
     lines = [f"# {scene} ({name})"] if header else []
     lines += [pose_to_line(result.best), *summary(result, cfg)]
+    if suggest_touch and result.ambiguous:
+        lines.append(touch_line(touch))
     if not header:
         lines.append(f"(loading the artifacts took {load_seconds:.2f} s)")
     elif load_seconds > 0:
@@ -403,7 +443,7 @@ def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: Estimato
         for scene in scenes:
             try:
                 name = object_of(scene, args.object, known)
-                result, load_seconds = estimate_scene(scene, name, cache)
+                result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch)
             except ConfigError:
                 raise  # a bad setting fails every scene alike: stop with exit status 2
             except Tactile6dError as exc:
@@ -411,11 +451,11 @@ def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: Estimato
                 write(error_line(scene, exc), sys.stderr)
             else:
                 if args.json:
-                    write(as_json(scene, name, result, cfg, load_seconds), sys.stdout)
+                    write(as_json(scene, name, result, cfg, load_seconds, args.suggest_touch, touch), sys.stdout)
                 else:
                     # a blank line between results
-                    write(("\n" if printed else "") + as_text(scene, name, result, cfg, load_seconds, header=True),
-                          sys.stdout)
+                    write(("\n" if printed else "") + as_text(scene, name, result, cfg, load_seconds, True,
+                                                               args.suggest_touch, touch), sys.stdout)
                 printed += 1
             bar.update(1)
     if failed:
@@ -439,9 +479,9 @@ def main(argv: list[str]) -> int:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).
         scene = scenes[0]
         name = object_of(scene, args.object, known)
-        result, load_seconds = estimate_scene(scene, name, cache)
-        write(as_json(scene, name, result, cfg, load_seconds) if args.json
-              else as_text(scene, name, result, cfg, load_seconds, header=False), sys.stdout)
+        result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch)
+        write(as_json(scene, name, result, cfg, load_seconds, args.suggest_touch, touch) if args.json
+              else as_text(scene, name, result, cfg, load_seconds, False, args.suggest_touch, touch), sys.stdout)
         return 0
     if args.object != AUTO:
         # One object for all: missing artifacts would fail every scene, so they end the command here.
