@@ -37,10 +37,11 @@ if TYPE_CHECKING:
 
 
 class Touch(NamedTuple):
-    """A touch that tells poses apart: ``point`` (3,) world, where the sensor meets the surface if the best pose is
+    """A touch to tell poses apart: ``point`` (3,) world, where the sensor meets the surface if the best pose is
     right; ``normal`` (3,) world, the outward surface normal there (approach along ``-normal``);
     ``T_world_sensor`` (4, 4) the sensor pressing there as the best pose places the object; ``separation`` m, how
-    far the nearest rival's surface lies from ``point``."""
+    far the nearest rival's surface lies from ``point`` (under ``touch_to_tell_apart``'s ``least``: a touch that
+    pins the pose better without telling the poses apart)."""
 
     point: np.ndarray
     normal: np.ndarray
@@ -122,8 +123,8 @@ def touch_as_met(mesh, T_world_object: np.ndarray, touch: Touch, reach: float = 
     tests and studies): mesh (object frame, trimesh) at T_world_object (4, 4). The sensor starts ``reach`` out
     along the normal and moves in along ``-normal`` until it meets the surface, at most ``2 reach`` on (past
     the touch point as far as it started before it; the start is taken to be outside the object), then presses
-    ``press``. -> (T_world_sensor (4, 4), met):
-    pressing where it met the object, or where the touch placed it (``touch.T_world_sensor``) when it met none.
+    ``press``. -> (T_world_sensor (4, 4), met): pressing where it met the object, or where the touch placed it
+    (``touch.T_world_sensor``) when it met none.
     """
     start = touch.point + reach * touch.normal
     local_start = transform_points(np.linalg.inv(T_world_object), start[None])[0]
