@@ -43,6 +43,7 @@ from tactile6d.estimation import disambiguation  # noqa: E402
 from tactile6d.estimation.estimator import Estimator  # noqa: E402
 from tactile6d.estimation.optimize import use_cpu_devices_for  # noqa: E402
 from tactile6d.evaluation import scoring  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 from tactile6d.runtime.script_args import parse_with_overrides  # noqa: E402
 from tactile6d.sim.render import DigitRenderer, load_background_bgr  # noqa: E402
 
@@ -144,4 +145,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    run_pinned()  # figures that repeat on every CPU, as the stages' do
     sys.exit(main())
