@@ -38,7 +38,7 @@ def test_a_box_slid_along_its_length_is_told_apart_on_an_end_face(box):
     p = local(BEST, touch.point)
     assert abs(abs(p[0]) - HALF[0]) < 1e-6 and np.all(np.abs(p[1:]) < HALF[1:])  # on an end face
     assert abs(abs(touch.normal[0]) - 1.0) < 1e-9 and np.sign(touch.normal[0]) == np.sign(p[0])
-    assert touch.separation >= 0.01
+    assert touch.separation >= 0.01 and touch.tells_apart
     nearest = np.min(np.linalg.norm(g.transform_points(SHIFTED, box.points) - touch.point, axis=1))
     assert nearest == pytest.approx(touch.separation)
     assert not body_penetrates(box, g.invert_pose(BEST) @ touch.T_world_sensor)
@@ -61,7 +61,7 @@ def test_poses_that_no_touch_tells_apart_get_the_flattest_reachable_touch(box):
     reachable spot (on a box, the middle of a face), its separation under ``least``."""
     near = BEST @ g.make_pose(np.eye(3), [0.001, 0.0, 0.0])
     touch = disambiguation.touch_to_tell_apart(box, np.stack([BEST, near]), np.zeros((0, 4, 4)))
-    assert touch is not None and touch.separation < 0.003
+    assert touch is not None and touch.separation < 0.003 and not touch.tells_apart
     p = local(BEST, touch.point)
     on_face = np.abs(np.abs(p) - HALF) < 1e-6
     assert on_face.sum() == 1 and np.all(np.abs(p[~on_face]) < HALF[~on_face] - 0.006)  # 6 mm from every edge

@@ -175,18 +175,36 @@ def test_the_command_suggests_one_more_touch(capsys, artifacts_with_model, scene
     result = json.loads(out)
     assert result["ambiguous"]
     touch = result["touch"]
-    assert touch is not None and set(touch) == {"point", "normal", "T_world_sensor", "separation"}
+    assert touch is not None and set(touch) == {"point", "normal", "T_world_sensor", "separation", "tells_apart"}
     assert np.linalg.norm(touch["normal"]) == pytest.approx(1.0) and touch["separation"] > 0
     poses = np.array([d["pose"] for d in result["distinct_poses"]])
     T, _ = read_scene_dir(scene)
     box = est.Estimator.from_artifacts("prim_box", artifacts_with_model, compose_config(["select.method=baseline"]))
     expected = disambiguation.touch_to_tell_apart(box.surface, poses, T)
     np.testing.assert_allclose(touch["point"], expected.point, atol=1e-12)
+    assert touch["tells_apart"] is expected.tells_apart
     code, out, err = run(capsys, *ESTIMATE, "--scene", str(scene), "--artifacts", str(artifacts_with_model),
                          "--suggest-touch")
     assert code == 0, err
     lines = [line for line in out.splitlines() if line.startswith("touch:")]
     assert len(lines) == 1 and " ".join(f"{v:.4f}" for v in expected.point) in lines[0]
+
+
+def test_the_touch_line_says_whether_the_touch_tells_the_poses_apart():
+    """The ``touch:`` line claims that a touch tells the poses apart only where it does (``Touch.tells_apart``);
+    the fallback, the flattest reachable spot, says it pins the pose better; no touch at all says so."""
+    from tactile6d.cli.estimate import touch_json, touch_line
+
+    T = g.make_pose(np.eye(3), [0.1, 0.0, 0.0])
+    telling = disambiguation.Touch(np.array([0.1, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]), T, 0.012, True)
+    fallback = telling._replace(separation=0.001, tells_apart=False)
+    assert "tells the poses apart (their surfaces 1.2 cm apart there)" in touch_line(telling)
+    line = touch_line(fallback)
+    assert "pins the pose better but barely tells the poses apart (their surfaces 0.1 cm apart there" in line
+    assert "0.1000 0.0000 0.0000" in line and "1.000 0.000 0.000" in line
+    assert touch_line(None) == "touch: none reachable that tells the poses apart"
+    assert touch_json(fallback)["tells_apart"] is False and touch_json(telling)["tells_apart"] is True
+    assert touch_json(None) is None
 
 
 @pytest.mark.slow

@@ -34,8 +34,9 @@ each pose that explains the contacts about equally well, the best first; empty w
 loaded). With ``--suggest-touch``, an ambiguous estimate also says where one more touch would tell its poses
 apart (``disambiguation.touch_to_tell_apart``: a ``touch:`` line; in JSON ``touch``, null when the estimate is
 not ambiguous, else its ``point`` and ``normal`` (world; approach along minus the normal), the
-``T_world_sensor`` pressing there if the best pose is right and the ``separation`` (m) from the rivals'
-surfaces); after the touch, ``disambiguation.choose`` re-ranks the poses. A progress bar goes to stderr when
+``T_world_sensor`` pressing there if the best pose is right, the ``separation`` (m) from the rivals'
+surfaces and ``tells_apart``, false where no reachable flat spot lies 3 mm from them and the touch is the
+flattest spot's, which pins the pose better without telling the poses apart); after the touch, ``disambiguation.choose`` re-ranks the poses. A progress bar goes to stderr when
 there are more than a few scenes and stderr is a terminal.
 
 Errors: with one ``--scene``, any error ends the command with one ``error:`` line and exit status 2,
@@ -326,17 +327,24 @@ def touch_line(touch) -> str:
         return "touch: none reachable that tells the poses apart"
     point = " ".join(f"{v:.4f}" for v in touch.point)
     normal = " ".join(f"{v:.3f}" for v in touch.normal)
-    return (f"touch: one more sensor at {point} (m), moved in along minus the normal {normal} until it meets the "
-            f"object, tells the poses apart (their surfaces {100 * touch.separation:.1f} cm apart there); then "
-            "disambiguation.choose")
+    where = (f"touch: one more sensor at {point} (m), moved in along minus the normal {normal} until it meets the "
+             "object, ")
+    apart = f"their surfaces {100 * touch.separation:.1f} cm apart there"
+    if touch.tells_apart:
+        return f"{where}tells the poses apart ({apart}); then disambiguation.choose"
+    # The fallback: no reachable flat spot where the poses' surfaces part; the touch still pins the pose better.
+    return (f"{where}pins the pose better but barely tells the poses apart ({apart}: no reachable flat spot where "
+            "they part more); then disambiguation.choose")
 
 
 def touch_json(touch) -> dict | None:
-    """``--suggest-touch``'s JSON: the touch's point, normal, sensor pose and separation, or None."""
+    """``--suggest-touch``'s JSON: the touch's point, normal, sensor pose, separation and whether it tells the poses
+    apart (``Touch.tells_apart``), or None."""
     if touch is None:
         return None
     return {"point": touch.point.tolist(), "normal": touch.normal.tolist(),
-            "T_world_sensor": touch.T_world_sensor.tolist(), "separation": touch.separation}
+            "T_world_sensor": touch.T_world_sensor.tolist(), "separation": touch.separation,
+            "tells_apart": touch.tells_apart}
 
 
 FROM_SCENES = "from-scenes"  # --background's word for "estimate each sensor's from the scenes' images"

@@ -40,13 +40,15 @@ class Touch(NamedTuple):
     """A touch to tell poses apart: ``point`` (3,) world, where the sensor meets the surface if the best pose is
     right; ``normal`` (3,) world, the outward surface normal there (approach along ``-normal``);
     ``T_world_sensor`` (4, 4) the sensor pressing there as the best pose places the object; ``separation`` m, how
-    far the nearest rival's surface lies from ``point`` (under ``touch_to_tell_apart``'s ``least``: a touch that
-    pins the pose better without telling the poses apart)."""
+    far the nearest rival's surface lies from ``point``; ``tells_apart``: whether that is at least
+    ``touch_to_tell_apart``'s ``least`` (False for its fallback, the flattest reachable spot: a touch that pins
+    the pose better without telling the poses apart)."""
 
     point: np.ndarray
     normal: np.ndarray
     T_world_sensor: np.ndarray
     separation: float
+    tells_apart: bool
 
 
 def separation_from_rivals(points: np.ndarray, surface: SurfaceSamples, rivals: np.ndarray) -> np.ndarray:
@@ -113,7 +115,8 @@ def touch_to_tell_apart(
         T_world_sensor = best @ T_object_sensors[k]
         if any(bodies_overlap(T_world_sensor, T, -clearance) for T in np.asarray(T_world_sensors)):
             continue
-        return Touch(world[k], best[:3, :3] @ surface.normals[candidates[k]], T_world_sensor, float(separation[k]))
+        return Touch(world[k], best[:3, :3] @ surface.normals[candidates[k]], T_world_sensor, float(separation[k]),
+                     bool(separation[k] >= least))
     return None
 
 
