@@ -3,6 +3,7 @@
     python scripts/real_setup_check.py --artifacts artifacts --scenes caddeo2023 --conditions clean noise light kinematic
     python scripts/real_setup_check.py --scenes caddeo2023 --conditions light select.align_light=false
     python scripts/real_setup_check.py --scenes caddeo2023 --conditions light kinematic preset=paper
+    python scripts/real_setup_check.py --scenes validation --conditions clean jpeg jpeg60 blur
 
 Issue 34's table, on any scene set with images: the paper's 40 triplets (``caddeo2023``) were rendered by
 TACTO, another simulator than this project's, so on them it shows whether what the estimator does for real
@@ -15,7 +16,10 @@ with), drawn from ``--seed``:
 - ``light``: each sensor's own gain per channel (1 +- 0.1) and gamma (0.83-1.2), then noise 2, the no-contact
   image not recorded again (what a unit whose LEDs drifted gives);
 - ``kinematic``: each sensor pose off by 1.5 mm and 1.5 deg per axis (Gaussian, sensor frame), the images
-  those of the true poses.
+  those of the true poses;
+- ``jpeg``: every image and no-contact image JPEG-compressed at quality 80, as a DIGIT's MJPEG stream
+  delivers them (``perturb.through_camera``); ``jpeg60`` at quality 60;
+- ``blur``: every image and no-contact image blurred by a Gaussian of 1 pixel (a lens slightly out of focus).
 
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
 the evaluation scores it; one JSON line per condition: the positional error of the best pose, mean and
@@ -54,7 +58,10 @@ from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
 from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
-CONDITIONS = ("clean", "noise", "light", "kinematic")
+CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur")
+ISSUE_CONDITIONS = CONDITIONS[:4]  # issue 34's table: the default
+JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60}
+BLUR_SIGMA = 1.0  # pixels
 NOISE_STD = 2.0  # grey levels
 GAIN_MAX, GAMMA_RANGE = 0.10, (0.83, 1.20)
 SIGMA_MM, SIGMA_DEG = 1.5, 1.5
@@ -73,6 +80,10 @@ def real_set_up(scene_set: scenes.SceneSet, condition: str, background: np.ndarr
         return perturb.drift_light(scene_set, background, GAIN_MAX, GAMMA_RANGE, NOISE_STD, 0.0, rng)
     if condition == "kinematic":
         return perturb.perturb_sensor_poses(scene_set, 1e-3 * SIGMA_MM, np.radians(SIGMA_DEG), rng)
+    if condition in JPEG_QUALITY:
+        return perturb.through_camera(scene_set, background, jpeg_quality=JPEG_QUALITY[condition])
+    if condition == "blur":
+        return perturb.through_camera(scene_set, background, blur_sigma=BLUR_SIGMA)
     raise ValueError(f"unknown condition {condition!r}; choose from {CONDITIONS}")
 
 
@@ -120,7 +131,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--artifacts", default="artifacts")
     parser.add_argument("--scenes", default="caddeo2023", help="a scene set with images under artifacts/scenes")
-    parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
+    parser.add_argument("--conditions", nargs="+", default=list(ISSUE_CONDITIONS), choices=CONDITIONS,
+                        help="default: issue 34's four (clean noise light kinematic)")
     parser.add_argument("--seed", type=int, default=0, help="of the perturbations drawn")
     parser.add_argument("--light-fits", action="store_true", help="also how well the light was fitted (module docstring)")
     parser.add_argument("--out", help="write each condition's per-scene errors to OUT<condition>.npz (as eval_accuracy.py "

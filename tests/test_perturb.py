@@ -74,3 +74,41 @@ def test_camera_noise_has_its_sigma(noise):
     image = np.full((200, 200, 3), 128, np.uint8)
     out = perturb.add_camera_noise(image, noise, np.random.default_rng(4)).astype(float)
     assert abs(out.std() - noise) < 0.1
+
+
+def test_the_jpeg_round_trip_is_opencvs_encode_and_decode_in_rgb():
+    """Against the naive round trip through a file: BGR on disk as OpenCV writes it, RGB in memory."""
+    import cv2
+
+    clean, _ = clean_set()
+    image = clean.images[0, 0]
+    ok, encoded = cv2.imencode(".jpg", image[..., ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    naive = cv2.imdecode(encoded, cv2.IMREAD_COLOR)[..., ::-1]
+    np.testing.assert_array_equal(perturb.jpeg_round_trip(image, 80), naive)
+    assert np.abs(perturb.jpeg_round_trip(image, 80).astype(int) - image).mean() < 2  # smooth: little lost
+
+
+def test_defocus_is_a_normalised_gaussian_of_its_sigma():
+    """A single bright pixel spreads into the Gaussian's kernel, its sum kept; sigma 0 leaves the image."""
+    image = np.zeros((H, W, 3), np.uint8)
+    image[160, 120] = 255
+    out = perturb.defocus(image, 1.0).astype(float)
+    assert out[..., 0].sum() == pytest.approx(255, abs=8)  # rounding of the 49 taps
+    assert np.count_nonzero(out[..., 0]) <= 49 and out[160, 120, 0] == out[..., 0].max()
+    ratio = out[160, 121, 0] / out[160, 120, 0]
+    assert ratio == pytest.approx(np.exp(-0.5), abs=0.03)
+    np.testing.assert_array_equal(perturb.defocus(image, 0.0), image)
+
+
+def test_through_camera_treats_each_sensors_own_no_contact_image_like_its_images():
+    clean, background = clean_set()
+    out = perturb.through_camera(clean, background, jpeg_quality=70, blur_sigma=1.0)
+    expected = perturb.jpeg_round_trip(perturb.defocus(clean.images[2, 1], 1.0), 70)
+    np.testing.assert_array_equal(out.images[2, 1], expected)
+    np.testing.assert_array_equal(out.backgrounds[3, 0], perturb.jpeg_round_trip(perturb.defocus(background, 1.0), 70))
+    own = np.broadcast_to(background[::-1], clean.images.shape).copy()  # a set that carries its own
+    from dataclasses import replace
+
+    again = perturb.through_camera(replace(clean, backgrounds=own), background, jpeg_quality=70)
+    np.testing.assert_array_equal(again.backgrounds[0, 2], perturb.jpeg_round_trip(own[0, 2], 70))
+    np.testing.assert_array_equal(out.T_world_object, clean.T_world_object)

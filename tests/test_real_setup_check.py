@@ -1,5 +1,7 @@
 """scripts/real_setup_check.py: what each condition changes in a scene set, and the figures of a condition."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from script_loader import load_script
@@ -57,6 +59,30 @@ def test_kinematic_moves_the_sensor_poses_by_the_declared_sigmas_and_keeps_the_i
     moved = np.linalg.inv(s.T_world_sensors) @ out.T_world_sensors  # the error, in each sensor's frame
     np.testing.assert_allclose(moved[..., :3, 3], out.extra["pose_error_translation"], atol=1e-12)
     assert 0 < np.abs(out.extra["pose_error_translation"]).max() < 6 * 1e-3 * check.SIGMA_MM
+
+
+def test_jpeg_and_blur_pass_images_and_no_contact_images_through_the_same_camera():
+    """A camera's stream: every image and each sensor's no-contact image compressed (or blurred) alike, so that
+    an untouched image still equals its no-contact image; the poses stay."""
+    s = small_set()
+    s = replace(s, images=np.stack([np.stack([BACKGROUND] * 3)] * 3))  # nothing touches
+    for condition in ("jpeg", "jpeg60", "blur"):
+        out = check.real_set_up(s, condition, BACKGROUND, np.random.default_rng(0))
+        assert out.backgrounds.shape == s.images.shape
+        np.testing.assert_array_equal(out.images, out.backgrounds)
+        np.testing.assert_array_equal(out.T_world_sensors, s.T_world_sensors)
+
+
+def test_the_camera_conditions_change_a_textured_image_as_their_strength():
+    rng = np.random.default_rng(1)
+    image = np.clip(rng.normal(120, 30, (320, 240, 3)), 0, 255).astype(np.uint8)
+    s = small_set(n=1, L=1)
+    s = replace(s, images=image[None, None])
+    error = {c: np.abs(check.real_set_up(s, c, BACKGROUND, rng).images[0, 0].astype(float) - image).mean()
+             for c in ("jpeg", "jpeg60", "blur")}
+    assert 0 < error["jpeg"] < error["jpeg60"]  # more compression, more loss
+    blurred = check.real_set_up(s, "blur", BACKGROUND, rng).images[0, 0].astype(float)
+    assert blurred.std() < 0.5 * image.std()  # noise averaged out over the kernel
 
 
 def test_an_unknown_condition_is_refused():

@@ -12,6 +12,9 @@ and contacts as its clean draw would (ground truth unchanged), only what the est
 - **kinematics** (``perturb_sensor_poses``): each sensor pose as recorded is the true one moved, in the
   sensor's own frame, by a translation with ``sigma_m`` per axis and a rotation vector with ``sigma_rad``
   per axis (Gaussian). The images are those of the true poses.
+- **camera** (``through_camera``): every image and every sensor's no-contact image, which comes through the
+  same camera, as a USB camera's stream delivers them: blurred (a lens slightly out of focus) and/or
+  JPEG-compressed (a DIGIT streams MJPEG).
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+
+import cv2
 
 from tactile6d.core.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.sim.scenes import SceneSet
@@ -38,6 +43,46 @@ def add_camera_noise(image: np.ndarray, noise_std: float, rng: np.random.Generat
     if noise_std <= 0:
         return np.asarray(image).copy()
     return np.clip(np.rint(image + rng.normal(0.0, noise_std, np.shape(image))), 0, 255).astype(np.uint8)
+
+
+def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
+    """image (H, W, 3) uint8 RGB encoded as a JPEG of ``quality`` (1-100) and decoded again (OpenCV's libjpeg,
+    its accurate integer transform: the same bytes on every CPU)."""
+    ok, encoded = cv2.imencode(".jpg", np.ascontiguousarray(np.asarray(image)[..., ::-1]),
+                               [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f"JPEG encoding failed (quality {quality})")
+    return np.ascontiguousarray(cv2.imdecode(encoded, cv2.IMREAD_COLOR)[..., ::-1])
+
+
+def defocus(image: np.ndarray, sigma: float) -> np.ndarray:
+    """image (H, W, 3) uint8 blurred by a Gaussian of ``sigma`` pixels (OpenCV's bit-exact 8-bit filter,
+    kernel 2 ceil(3 sigma) + 1 wide), as a lens slightly out of focus gives it; sigma 0: a copy."""
+    if sigma <= 0:
+        return np.asarray(image).copy()
+    k = 2 * int(np.ceil(3.0 * sigma)) + 1
+    return cv2.GaussianBlur(np.asarray(image), (k, k), sigma, borderType=cv2.BORDER_REFLECT_101)
+
+
+def through_camera(scenes: SceneSet, background: np.ndarray, jpeg_quality: int | None = None,
+                   blur_sigma: float = 0.0) -> SceneSet:
+    """``scenes`` as a camera's stream delivers them (module docstring): each image blurred by ``blur_sigma``
+    pixels, then JPEG-compressed at ``jpeg_quality`` (None: not compressed) -> a new set whose ``backgrounds``
+    (S, L, 320, 240, 3) are the no-contact image (320, 240, 3) uint8 RGB the scenes were rendered over (or each
+    sensor's own, when the set carries them) through the same camera."""
+    def camera(image: np.ndarray) -> np.ndarray:
+        out = defocus(image, blur_sigma)
+        return out if jpeg_quality is None else jpeg_round_trip(out, jpeg_quality)
+
+    n, L = scenes.images.shape[:2]
+    images = np.empty_like(scenes.images)
+    backgrounds = np.empty_like(scenes.images)
+    for s in range(n):
+        own = scenes.backgrounds_of(s)
+        for i in range(L):
+            images[s, i] = camera(scenes.images[s, i])
+            backgrounds[s, i] = camera(background if own is None else own[i])
+    return replace(scenes, images=images, backgrounds=backgrounds)
 
 
 def drift_light(scenes: SceneSet, background: np.ndarray, gain_max: float, gamma_range: tuple[float, float],
