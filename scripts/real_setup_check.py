@@ -18,7 +18,7 @@ with), drawn from ``--seed``:
 - ``kinematic``: each sensor pose off by 1.5 mm and 1.5 deg per axis (Gaussian, sensor frame), the images
   those of the true poses;
 - ``jpeg``: every image and no-contact image JPEG-compressed at quality 80, as a DIGIT's MJPEG stream
-  delivers them (``perturb.through_camera``); ``jpeg60`` at quality 60;
+  delivers them (``perturb.through_camera``); ``jpeg60`` and ``jpeg90`` at quality 60 and 90;
 - ``blur``: every image and no-contact image blurred by a Gaussian of 1 pixel (a lens slightly out of focus).
 
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
@@ -58,9 +58,9 @@ from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
 from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
-CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur")
+CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90")
 ISSUE_CONDITIONS = CONDITIONS[:4]  # issue 34's table: the default
-JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60}
+JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60, "jpeg90": 90}
 BLUR_SIGMA = 1.0  # pixels
 NOISE_STD = 2.0  # grey levels
 GAIN_MAX, GAMMA_RANGE = 0.10, (0.83, 1.20)

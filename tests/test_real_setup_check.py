@@ -66,7 +66,7 @@ def test_jpeg_and_blur_pass_images_and_no_contact_images_through_the_same_camera
     an untouched image still equals its no-contact image; the poses stay."""
     s = small_set()
     s = replace(s, images=np.stack([np.stack([BACKGROUND] * 3)] * 3))  # nothing touches
-    for condition in ("jpeg", "jpeg60", "blur"):
+    for condition in ("jpeg", "jpeg60", "jpeg90", "blur"):
         out = check.real_set_up(s, condition, BACKGROUND, np.random.default_rng(0))
         assert out.backgrounds.shape == s.images.shape
         np.testing.assert_array_equal(out.images, out.backgrounds)
