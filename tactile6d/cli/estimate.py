@@ -36,8 +36,9 @@ apart (``disambiguation.touch_to_tell_apart``: a ``touch:`` line; in JSON ``touc
 not ambiguous, else its ``point`` and ``normal`` (world; approach along minus the normal), the
 ``T_world_sensor`` pressing there if the best pose is right, the ``separation`` (m) from the rivals'
 surfaces and ``tells_apart``, false where no reachable flat spot lies 3 mm from them and the touch is the
-flattest spot's, which pins the pose better without telling the poses apart); after the touch, ``disambiguation.choose`` re-ranks the poses. A progress bar goes to stderr when
-there are more than a few scenes and stderr is a terminal.
+flattest spot's, which pins the pose better without telling the poses apart); after the touch,
+``disambiguation.choose`` re-ranks the poses. A progress bar goes to stderr when there are more than a few
+scenes and stderr is a terminal.
 
 Errors: with one ``--scene``, any error ends the command with one ``error:`` line and exit status 2,
 as for a bad option, an unknown object or a bad config override in every case. With several scenes,

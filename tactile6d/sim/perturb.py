@@ -21,9 +21,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
-
 import cv2
+import numpy as np
 
 from tactile6d.core.geometry import make_pose, rotvec_to_rotmat
 from tactile6d.sim.scenes import SceneSet
@@ -47,7 +46,7 @@ def add_camera_noise(image: np.ndarray, noise_std: float, rng: np.random.Generat
 
 def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
     """image (H, W, 3) uint8 RGB encoded as a JPEG of ``quality`` (1-100) and decoded again (OpenCV's libjpeg,
-    its accurate integer transform: the same bytes on every CPU)."""
+    its default, accurate integer transform)."""
     ok, encoded = cv2.imencode(".jpg", np.ascontiguousarray(np.asarray(image)[..., ::-1]),
                                [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
