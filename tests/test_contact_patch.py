@@ -356,6 +356,23 @@ def test_a_press_through_a_cameras_stream_reads_as_the_clean_press(renderer, mes
     assert untouched.contact is False
 
 
+@pytest.mark.parametrize("noise_std", [0.0, 2.0])
+def test_a_quiet_image_gets_the_mask_of_the_renderers_noise(background, mesh_of, model, noise_std):
+    """Rendered with less noise than the renderer's 7 grey levels, a press's mask is about the one read under
+    that noise, not grown into the blurred imprint's faint halo, as it was with thresholds that fell with the
+    noise (``MIN_NOISE``)."""
+    noisy = DigitRenderer.from_default_config(background)
+    quiet = DigitRenderer.from_default_config(background, noise_std=noise_std)
+    reads = {}
+    for name, renderer in (("noisy", noisy), ("quiet", quiet)):
+        result, _, _, _ = press(renderer, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0], seed=5)
+        reads[name] = contact_patch.image_to_patch(result.image, renderer.no_contact(seed=6), model)
+    truth = result.mask
+    assert iou(reads["quiet"].mask, reads["noisy"].mask) > 0.9
+    assert reads["quiet"].mask.sum() < 1.1 * reads["noisy"].mask.sum()
+    assert iou(reads["quiet"].mask, truth) > 0.85
+
+
 def test_saturated_or_blank_images_raise_one_clear_error_or_report_no_contact(model, no_contact):
     for value in (0, 255):
         image = np.full((H, W, 3), value, dtype=np.uint8)
@@ -433,7 +450,8 @@ def _reference_noise(diff):
 
 
 def _reference_mask(smooth, noise, model):
-    s = max(contact_patch.smoothed_difference_noise(smooth, noise, model.mask_sigma), 0.05)
+    s = max(contact_patch.smoothed_difference_noise(smooth, noise, model.mask_sigma),
+            contact_patch.smoothed_noise(contact_patch.MIN_NOISE, model.mask_sigma))
     magnitude = np.sqrt(np.sum(smooth.astype(np.float64) ** 2, axis=-1))
     low = (magnitude > model.grow_level * s).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(low, connectivity=8)
