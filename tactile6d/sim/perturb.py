@@ -76,11 +76,12 @@ def through_camera(scenes: SceneSet, background: np.ndarray, jpeg_quality: int |
     n, L = scenes.images.shape[:2]
     images = np.empty_like(scenes.images)
     backgrounds = np.empty_like(scenes.images)
+    shared = camera(background) if scenes.backgrounds is None else None  # one no-contact image for all: once
     for s in range(n):
         own = scenes.backgrounds_of(s)
         for i in range(L):
             images[s, i] = camera(scenes.images[s, i])
-            backgrounds[s, i] = camera(background if own is None else own[i])
+            backgrounds[s, i] = shared if own is None else camera(own[i])
     return replace(scenes, images=images, backgrounds=backgrounds)
 
 
