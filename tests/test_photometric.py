@@ -250,6 +250,43 @@ def test_a_rendered_press_under_drifted_light_gives_the_same_contact_point(rende
     assert np.linalg.norm(as_given.point - reference.point) > 0.002
 
 
+def _iou(a, b):
+    return np.count_nonzero(a & b) / max(np.count_nonzero(a | b), 1)
+
+
+@pytest.mark.parametrize("gain, offset", [(0.985, 0.0), (1.0, -1.5)])
+@pytest.mark.slow
+def test_a_slight_change_of_light_is_aligned_before_the_mask_reads_it(renderer, gain, offset):
+    """A light 1.5 % dimmer, or 1.5 grey levels darker (an exposure step, LEDs warming up after the no-contact
+    image was recorded), moves the image by about 2 grey levels, under the 2.5 that ``MIN_CHANGE`` was: read as
+    given against a recorded (noise-free) no-contact image, the contact mask spills over the untouched gel, and
+    an untouched image reads as touched. Aligned, the press reads the mask it reads under the no-contact image's
+    light, and the untouched image no contact."""
+    shape, point, normal, depth = PRESSES["sphere"]
+    model = small_patch_model()
+    result = press(renderer, contact_patch.shape_to_mesh, shape, point, normal, depth=depth, tilt_axis=0.5,
+                   tilt=0.2, offset=(0.002, -0.001), seed=11)[0]
+    recorded = DigitRenderer.from_default_config(colourful_background(), noise_std=0.0).no_contact()
+    rng = np.random.default_rng(3)
+
+    def slightly(image):  # the change, each value rounded at random (dither), as a camera's noise would
+        x = image.astype(np.float64) * gain + offset
+        return np.clip(np.floor(x + rng.random(x.shape)), 0, 255).astype(np.uint8)
+
+    reference = contact_patch.image_to_patch(result.image, recorded, model)
+    changed = slightly(result.image)
+    aligned, (fit,) = photometric.align_images(changed[None], recorded[None])
+    read = contact_patch.image_to_patch(aligned[0], recorded, model)
+    as_given = contact_patch.image_to_patch(changed, recorded, model)
+    assert fit.applied and read.contact
+    assert _iou(read.mask, reference.mask) > 0.95 and _iou(as_given.mask, reference.mask) < 0.9
+    assert np.linalg.norm(read.point - reference.point) < 0.0005
+    untouched = slightly(renderer.no_contact(seed=14))
+    aligned, (fit,) = photometric.align_images(untouched[None], recorded[None])
+    assert fit.applied and not contact_patch.image_to_patch(aligned[0], recorded, model).contact
+    assert contact_patch.image_to_patch(untouched, recorded, model).contact
+
+
 @pytest.mark.parametrize("gain, gamma", [([0.92, 1.06, 0.97], [1.12, 0.88, 1.05]), ([1.08, 0.93, 1.04], [0.86, 1.15, 0.9])])
 @pytest.mark.slow
 def test_a_drift_is_recovered_under_a_press_over_most_of_the_gel(data_dir, gain, gamma):

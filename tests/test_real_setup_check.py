@@ -52,6 +52,16 @@ def test_light_drifts_each_sensor_and_keeps_the_old_no_contact_image():
     np.testing.assert_array_equal(out.T_world_object, s.T_world_object)
 
 
+def test_slight_drifts_each_sensor_by_a_few_percent_of_gain_and_no_gamma():
+    s = small_set()
+    out = check.real_set_up(s, "slight", BACKGROUND, np.random.default_rng(0))
+    gains = out.extra["light_gain"]
+    assert np.all(np.abs(gains - 1) <= check.SLIGHT_GAIN_MAX) and np.abs(gains - 1).max() > 0.01
+    np.testing.assert_array_equal(out.extra["light_gamma"], np.ones_like(gains))
+    np.testing.assert_array_equal(out.backgrounds, np.broadcast_to(BACKGROUND, out.backgrounds.shape))
+    assert 1.0 < np.abs(out.images.astype(float) - s.images).mean() < 4.0  # a grey level or two, and the noise
+
+
 def test_kinematic_moves_the_sensor_poses_by_the_declared_sigmas_and_keeps_the_images():
     s = small_set(n=3, L=3)
     out = check.real_set_up(s, "kinematic", BACKGROUND, np.random.default_rng(0))
