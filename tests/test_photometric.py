@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
-from test_contact_patch import BOX, SPHERE, press
+from test_contact_patch import BOX, SPHERE, iou, press
 from test_estimator import small_patch_model
 
 from tactile6d.core.settings import SelectSettings
@@ -250,10 +250,6 @@ def test_a_rendered_press_under_drifted_light_gives_the_same_contact_point(rende
     assert np.linalg.norm(as_given.point - reference.point) > 0.002
 
 
-def _iou(a, b):
-    return np.count_nonzero(a & b) / max(np.count_nonzero(a | b), 1)
-
-
 @pytest.mark.parametrize("gain, offset", [(0.985, 0.0), (1.0, -1.5)])
 @pytest.mark.slow
 def test_a_slight_change_of_light_is_aligned_before_the_mask_reads_it(renderer, gain, offset):
@@ -279,7 +275,7 @@ def test_a_slight_change_of_light_is_aligned_before_the_mask_reads_it(renderer, 
     read = contact_patch.image_to_patch(aligned[0], recorded, model)
     as_given = contact_patch.image_to_patch(changed, recorded, model)
     assert fit.applied and read.contact
-    assert _iou(read.mask, reference.mask) > 0.95 and _iou(as_given.mask, reference.mask) < 0.9
+    assert iou(read.mask, reference.mask) > 0.95 and iou(as_given.mask, reference.mask) < 0.9
     assert np.linalg.norm(read.point - reference.point) < 0.0005
     untouched = slightly(renderer.no_contact(seed=14))
     aligned, (fit,) = photometric.align_images(untouched[None], recorded[None])
