@@ -373,6 +373,35 @@ def test_a_quiet_image_gets_the_mask_of_the_renderers_noise(background, mesh_of,
     assert iou(reads["quiet"].mask, truth) > 0.85
 
 
+def dust(image: np.ndarray, centres, depth: float = 60.0, radius: float = 2.5) -> np.ndarray:
+    """image (H, W, 3) uint8 with dark Gaussian specks (``depth`` grey levels, ``radius`` px) at ``centres`` (row,
+    column): dust settled on the gel after its no-contact image was recorded."""
+    rows, cols = np.mgrid[0:H, 0:W]
+    out = image.astype(np.float64)
+    for r, c in centres:
+        out -= depth * np.exp(-((rows - r) ** 2 + (cols - c) ** 2) / (2.0 * radius**2))[..., None]
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+SPECKS = [(40, 40), (280, 200), (60, 190), (260, 50)]  # near the gel's corners, away from the press
+
+
+def test_dust_on_the_gel_is_left_out_of_the_contact_mask(renderer, background, mesh_of, model, monkeypatch):
+    """Four dark specks away from a press, read against a recorded (noise-free) no-contact image: the mask is the
+    press's alone (``SPECK_FRACTION``), not its convex hull with the specks across the gel; with the specks kept
+    (the fraction 0) it is that hull."""
+    no_contact = DigitRenderer.from_default_config(background, noise_std=0.0).no_contact()
+    result, _, _, _ = press(renderer, mesh_of, SPHERE, [-0.01, 0.0, 0.0], [-1.0, 0.0, 0.0], depth=0.0012, seed=5)
+    clean = contact_patch.image_to_patch(result.image, no_contact, model)
+    dusty = contact_patch.image_to_patch(dust(result.image, SPECKS), no_contact, model)
+    assert clean.contact and dusty.contact
+    assert iou(dusty.mask, clean.mask) > 0.95
+    assert np.linalg.norm(dusty.point - clean.point) < 0.0003
+    monkeypatch.setattr(contact_patch, "SPECK_FRACTION", 0.0)
+    kept = contact_patch.image_to_patch(dust(result.image, SPECKS), no_contact, model)
+    assert iou(kept.mask, clean.mask) < 0.5
+
+
 def test_saturated_or_blank_images_raise_one_clear_error_or_report_no_contact(model, no_contact):
     for value in (0, 255):
         image = np.full((H, W, 3), value, dtype=np.uint8)
