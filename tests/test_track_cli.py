@@ -8,6 +8,7 @@ autoencoder; what is checked here is the command's input and output, the tracker
 import contextlib
 import io
 import json
+import re
 import warnings
 
 import numpy as np
@@ -223,7 +224,9 @@ def test_fixed_sensor_poses_from_a_file(artifacts, recording):
     "argv,message",
     [(["--bag", "BAG"], "--bag needs --images"),
      (["--bag", "BAG", "--images", *TOPICS], "--bag needs the sensor poses"),
-     (["--sequence", "SEQUENCE", "--frames", *FRAMES], "--images, --frames and --poses go with --bag")],
+     (["--sequence", "SEQUENCE", "--frames", *FRAMES], "--images, --frames and --poses go with --bag"),
+     (["--sequence", "SEQUENCE", "--background", "first-frames", "a.png"], "first-frames stands alone"),
+     (["--sequence", "SEQUENCE", "--background-frames", "4"], "--background-frames must be at least 5")],
 )
 def test_usage_errors_exit_2(capsys, recording, argv, message):
     argv = [{"BAG": str(recording["bag"]), "SEQUENCE": str(recording["sequence"])}.get(a, a) for a in argv]
@@ -270,6 +273,55 @@ def test_a_bad_poses_file_is_one_error_line(capsys, artifacts, recording, tmp_pa
                          "--poses", str(path), "--artifacts", str(artifacts), *BASELINE)
     assert code == 2 and out == ""
     assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+
+
+def still_then(recording, n_still: int, frames: slice = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n_still`` untouched frames (the sensors' no-contact image and noise, the hand as at frame 0), then the
+    recording's ``frames`` -> sensor poses (F', 3, 4, 4), images (F', 3, 320, 240, 3), the untouched frames."""
+    renderer = DigitRenderer.from_default_config(np.ascontiguousarray(NO_CONTACT[..., ::-1]), workers=1)
+    seqs = recording["sequences"]
+    T, images = seqs.T_world_sensors[0][frames], seqs.images[0][frames]
+    still = np.array([[renderer.no_contact(seed=10 * k + i) for i in range(3)] for k in range(n_still)], np.uint8)
+    still = still.reshape(n_still, *images.shape[1:])
+    return np.concatenate([np.repeat(T[:1], n_still, 0), T]), np.concatenate([still, images]), still
+
+
+@pytest.mark.slow
+def test_no_contact_images_from_the_streams_first_frames(capsys, monkeypatch, artifacts, recording, tmp_path):
+    """``--background first-frames``: each sensor's mean over the first ``--background-frames`` frames goes with
+    every frame to the tracker (those frames tracked too), and stderr says so."""
+    from tactile6d.estimation.tracker import Tracker
+
+    T, images, still = still_then(recording, 5)
+    folder = sequence_dirs.write_sequence_dir(tmp_path / "sequence", T, images, fps=FPS)
+    passed, track = [], Tracker.track
+
+    def watched(self, stream):
+        return track(self, (passed.append(item[2]) or item for item in stream))
+
+    monkeypatch.setattr(Tracker, "track", watched)
+    code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(folder), "--artifacts", str(artifacts),
+                         "--background", "first-frames", "--background-frames", "5", *BASELINE)
+    assert code == 0, err
+    assert len(out.splitlines()) == 5 + F
+    assert "no-contact image is its mean over the first 5 frames" in err
+    learned = still.mean(axis=0).round().astype(np.uint8)
+    assert len(passed) == 5 + F and all(np.array_equal(b, learned) for b in passed)
+
+
+@pytest.mark.parametrize("n_still,count,message", [
+    (0, 5, f"the input holds {F} frames, fewer than --background-frames 5"),
+    (4, 6, r"sensor \d's stream: frame 4 of the first 6 shows a contact against the others"),
+])
+@pytest.mark.slow
+def test_first_frames_that_touch_or_are_too_few_are_one_error_line(capsys, artifacts, recording, tmp_path, n_still,
+                                                                   count, message):
+    T, images, _ = still_then(recording, n_still)
+    folder = sequence_dirs.write_sequence_dir(tmp_path / "sequence", T, images, fps=FPS)
+    code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(folder), "--artifacts", str(artifacts),
+                         "--background", "first-frames", "--background-frames", str(count), *BASELINE)
+    assert code == 2 and out == ""
+    assert err.startswith("error: ") and err.count("\n") == 1 and re.search(message, err), err
 
 
 @pytest.mark.slow

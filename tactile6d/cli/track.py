@@ -13,6 +13,11 @@ Input, one of:
   sensor). Frames follow the first image topic; the others are matched within ``--sync-tolerance``
   seconds (``tactile6d.data.rosbag_io``).
 
+``--background`` gives the sensors' no-contact images (one file for all or one per sensor), or with
+``first-frames`` takes each sensor's from the stream itself: its mean over the first ``--background-frames``
+frames, which must show nothing touching (``tactile6d.perception.stream_background``; a recording started
+before the fingers close).
+
 ``--sensor-offsets FILE`` corrects every frame's sensor poses by each sensor's mounting offset (``tactile6d
 calibrate-sensors``) before the tracker sees them.
 
@@ -37,6 +42,7 @@ line is written when the next frame has been read from the input.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import re
 import sys
@@ -56,11 +62,13 @@ from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import pose_to_line, text_to_poses
 from tactile6d.data import bop, rosbag_io, sequence_dirs
 from tactile6d.data.hdf5 import read_background_images
-from tactile6d.perception import photometric
+from tactile6d.perception import photometric, stream_background
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 
 if TYPE_CHECKING:
     from tactile6d.estimation.tracker import TrackedFrame
+
+FIRST_FRAMES = "first-frames"  # --background's word for "each sensor's mean over the stream's first frames"
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -84,8 +92,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="frame rate assumed for stamps when the input has none (a sequence without frames.json)")
     add_sensor_offsets_argument(parser, "every frame's sensor poses")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
-                        help="the sensors' no-contact image(s): one for every sensor or one per sensor (default: "
-                             "the sequence folder's background_<i>.png, else render.background)")
+                        help="the sensors' no-contact image(s): one for every sensor or one per sensor, or "
+                             f"'{FIRST_FRAMES}' (each sensor's mean over the stream's first --background-frames "
+                             "frames, which must show nothing touching) (default: the sequence folder's "
+                             "background_<i>.png, else render.background)")
+    parser.add_argument("--background-frames", type=int, default=stream_background.DEFAULT_FRAMES, metavar="N",
+                        help=f"with --background {FIRST_FRAMES}: how many of the first frames "
+                             f"(default {stream_background.DEFAULT_FRAMES}, at least {stream_background.MIN_FRAMES})")
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--json", action="store_true", help="one JSON object per frame (JSON Lines)")
     parser.add_argument("--bop", metavar="FILE", help="also write a BOP result CSV")
@@ -101,6 +114,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         words, args.overrides = split_overrides(getattr(args, name), list(args.overrides))
         setattr(args, name, words)
     args.background, args.overrides = split_overrides(args.background, list(args.overrides))
+    if args.background_frames < stream_background.MIN_FRAMES:
+        parser.error(f"--background-frames must be at least {stream_background.MIN_FRAMES}")
+    if FIRST_FRAMES in (args.background or []) and args.background != [FIRST_FRAMES]:
+        parser.error(f"--background {FIRST_FRAMES} stands alone (not beside files)")
     if args.bag is not None:
         if not args.images:
             parser.error("--bag needs --images TOPIC [TOPIC ...]")
@@ -136,6 +153,18 @@ def frames_of(args: argparse.Namespace) -> Iterator[Frame]:
         yield k, frame.stamp, frame.T_world_sensors, frame.images, None
 
 
+def backgrounds_from_first_frames(frames: Iterator[Frame], count: int, model) -> tuple[np.ndarray, Iterator[Frame]]:
+    """``--background first-frames``: each sensor's no-contact image from the stream's first ``count`` frames
+    (``stream_background.stream_start_to_backgrounds``, their contacts read with the patch ``model``) and the
+    stream whole again (those frames first). InputError when the stream is shorter or they show a contact."""
+    first = list(itertools.islice(frames, count))
+    if len(first) < count:
+        raise InputError(f"--background {FIRST_FRAMES}: the input holds {len(first)} frames, fewer than "
+                         f"--background-frames {count}")
+    backgrounds = stream_background.stream_start_to_backgrounds(np.stack([frame[3] for frame in first]), model)
+    return backgrounds, itertools.chain(first, frames)
+
+
 def frame_line(index: int, stamp: float | None, answer: TrackedFrame) -> str:
     stamp_text = "-" if stamp is None else f"{stamp:.6f}"
     confidence = "-" if answer.confidence is None else f"{answer.confidence:.3f}"
@@ -164,9 +193,15 @@ def main(argv: list[str]) -> int:
     use_solver_devices(cfg)
     from tactile6d.estimation.tracker import Tracker, TrackSettings  # torch, JAX: not loaded for --help
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
-    background = read_background_images(args.background) if args.background else None
+    learned = args.background == [FIRST_FRAMES]
+    background = read_background_images(args.background) if args.background and not learned else None
     cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args))
     estimator = cache.load(args.object)
+    frames = frames_of(args)
+    if learned:
+        background, frames = backgrounds_from_first_frames(frames, args.background_frames, estimator.patch_model)
+        write(f"note: each sensor's no-contact image is its mean over the first {args.background_frames} frames "
+              f"(--background {FIRST_FRAMES}), which show nothing touching", sys.stderr)
     stamps, poses, rows, seconds, modes = [], [], [], [], []
     drawn: dict[str, list] = {"times": [], "poses": [], "confidence": [], "ambiguous": [], "touching": []}  # --plot
     with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
@@ -175,9 +210,12 @@ def main(argv: list[str]) -> int:
         read = deque()  # (index, stamp) of the frames handed to the tracker and not yet answered
 
         def stream():
-            for index, stamp, T, images, frame_backgrounds in frames_of(args):
+            for index, stamp, T, images, frame_backgrounds in frames:
                 read.append((index, stamp))
-                yield cache.sensor_poses(T), images, None if background is not None else frame_backgrounds
+                if learned:  # per frame, as a sequence folder's own: the estimator's default is render.background
+                    yield cache.sensor_poses(T), images, background
+                else:
+                    yield cache.sensor_poses(T), images, None if background is not None else frame_backgrounds
 
         for answer in tracker.track(stream()):
             index, stamp = read.popleft()
