@@ -286,21 +286,26 @@ def still_then(recording, n_still: int, frames: slice = slice(None)) -> tuple[np
     return np.concatenate([np.repeat(T[:1], n_still, 0), T]), np.concatenate([still, images]), still
 
 
+@pytest.mark.parametrize("source", ["sequence", "bag"])
 @pytest.mark.slow
-def test_no_contact_images_from_the_streams_first_frames(capsys, monkeypatch, artifacts, recording, tmp_path):
+def test_no_contact_images_from_the_streams_first_frames(capsys, monkeypatch, artifacts, recording, tmp_path, source):
     """``--background first-frames``: each sensor's mean over the first ``--background-frames`` frames goes with
-    every frame to the tracker (those frames tracked too), and stderr says so."""
+    every frame to the tracker (those frames tracked too), and stderr says so; from a sequence folder or a bag."""
     from tactile6d.estimation.tracker import Tracker
 
     T, images, still = still_then(recording, 5)
-    folder = sequence_dirs.write_sequence_dir(tmp_path / "sequence", T, images, fps=FPS)
+    if source == "sequence":
+        given = ["--sequence", str(sequence_dirs.write_sequence_dir(tmp_path / "sequence", T, images, fps=FPS))]
+    else:
+        bag = rosbag_io.write_sequence_bag(tmp_path / "bag", 10.0 + np.arange(len(T)) / FPS, T, images, TOPICS, FRAMES)
+        given = ["--bag", str(bag), "--images", *TOPICS, "--frames", *FRAMES]
     passed, track = [], Tracker.track
 
     def watched(self, stream):
         return track(self, (passed.append(item[2]) or item for item in stream))
 
     monkeypatch.setattr(Tracker, "track", watched)
-    code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(folder), "--artifacts", str(artifacts),
+    code, out, err = run(capsys, "--object", OBJECT, *given, "--artifacts", str(artifacts),
                          "--background", "first-frames", "--background-frames", "5", *BASELINE)
     assert code == 0, err
     assert len(out.splitlines()) == 5 + F
@@ -364,3 +369,18 @@ def test_warnings_that_come_again_with_other_figures_are_told_once_per_image():
         "warning: image 1: only 3.0 % of the image and 2.1 % of its rim agree",
         "warning: image 0: its light would differ by a gain of 1.70/1.00/1.00",
     ]
+
+
+def test_a_no_contact_image_of_another_unit_draws_the_hint_to_take_the_streams_own():
+    from tactile6d.cli.track import hint_lines
+    from tactile6d.perception.photometric import LightWarning, UnitWarning
+
+    def caught(category):
+        return warnings.WarningMessage(category("image 0: ..."), category, "f.py", 1)
+
+    assert hint_lines([caught(LightWarning), caught(UnitWarning)], learned=False) == [
+        "hint: a stream recorded from before the fingers touch gives each unit's own no-contact image: "
+        "--background first-frames"]
+    assert hint_lines([caught(UnitWarning)], learned=True) == []
+    assert hint_lines([caught(LightWarning)], learned=False) == []
+

@@ -16,7 +16,7 @@ Input, one of:
 ``--background`` gives the sensors' no-contact images (one file for all or one per sensor), or with
 ``first-frames`` takes each sensor's from the stream itself: its mean over the first ``--background-frames``
 frames, which must show nothing touching (``tactile6d.perception.stream_background``; a recording started
-before the fingers close).
+before the fingers close). When a no-contact image looked like another unit's, a ``hint:`` line names it.
 
 ``--sensor-offsets FILE`` corrects every frame's sensor poses by each sensor's mounting offset (``tactile6d
 calibrate-sensors``) before the tracker sees them.
@@ -187,6 +187,15 @@ def warning_lines(caught: list[warnings.WarningMessage]) -> list[str]:
             for key, text in first.items()]
 
 
+def hint_lines(caught: list[warnings.WarningMessage], learned: bool) -> list[str]:
+    """A ``hint:`` line after the warnings when a no-contact image looked like another unit's
+    (``photometric.UnitWarning``) and the stream's own first frames were not taken (``learned``)."""
+    if learned or not any(issubclass(w.category, photometric.UnitWarning) for w in caught):
+        return []
+    return [f"hint: a stream recorded from before the fingers touch gives each unit's own no-contact image: "
+            f"--background {FIRST_FRAMES}"]
+
+
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     cfg = compose_config(args.overrides)
@@ -236,7 +245,7 @@ def main(argv: list[str]) -> int:
                 poses.append(answer.pose)
                 score = 1.0 if answer.confidence is None else answer.confidence
                 rows.append(bop.BopRow(args.scene_id, index, args.obj_id or 0, score, answer.pose, answer.seconds))
-    for line in warning_lines(caught):
+    for line in warning_lines(caught) + hint_lines(caught, learned):
         write(line, sys.stderr)
     if not modes:
         raise InputError("the input holds no frame")

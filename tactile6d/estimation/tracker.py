@@ -36,9 +36,7 @@ rank) costs 0.4 s and forgets the pose a moment ago. ``Tracker`` keeps the pose 
   fewer the object's pose is less determined (two contacts leave a cylinder free to slide along its axis),
   and a single-shot estimate from the others is then worse than the pose followed so far.
 - a frame where no image shows contact holds the last pose (nothing to fit), as does a re-detection that
-  matches nothing (then the next frame is re-detected again). Before the first pose, a frame's images are
-  read before any estimate is made, so the frames of a stream that starts before the fingers touch cost
-  their reading only.
+  matches nothing (then the next frame is re-detected again).
 
 Confidence per frame: the estimator's calibrated confidence (``confidence.ConfidenceModel``, P(ADI < 1
 cm) of a single-shot estimate) of the last re-detection, carried between re-detections; None without a
@@ -318,17 +316,7 @@ class Tracker:
         if reason == "start":
             if frame.ahead is not None:
                 cancel_unless_interrupted(frame.ahead.futures)
-            if not est.settings.select.reads_patches:
-                return self._redetect(T, raw, backgrounds, reason, start)
-            # Read first: a stream often starts before the fingers touch, and a frame whose images show no
-            # contact is held without the single-shot estimate, several times a frame's time (its light's fit
-            # is taken again on the next frame, as no estimate has kept one).
-            images, self._light = est._aligned(raw, per_sensor)
-            contacts = self._read_contacts(T, images, per_sensor)
-            touching = contacts.from_patch.copy() if contacts.observed else np.ones(len(T), dtype=bool)
-            if not touching.any():
-                return self._answer(self.pose, "hold", None, touching, np.nan, np.nan, np.nan, True, start)
-            return self._redetect(T, raw, backgrounds, reason, start, read=(images, contacts))
+            return self._redetect(T, raw, backgrounds, reason, start)
         fresh_light = self._light_is_stale(len(T))
         images = raw
         if fresh_light:
