@@ -3,10 +3,10 @@
 A hand's recording usually starts before the fingers close on the object: its first frames show each
 DIGIT's gel untouched, under the light of this recording. Their pixel mean is that unit's no-contact image,
 with none of the light drift a file recorded earlier may carry and with the camera noise averaged down
-(by the square root of the frame count: 7 grey levels in the simulator, 1.8 over 15 frames). It replaces a
-no-contact image recorded apart, not one's absence alone: read against another unit's no-contact image an
-estimate is centimetres off (docs/real_sensors.md), and the pixel median over scenes that touch
-(``photometric.background_from_images``) recovers only part of that.
+(by the square root of the frame count: 7 grey levels in the simulator, 1.8 over 15 frames). It stands in
+for a no-contact image recorded apart, and matters most where none was: read against another unit's (the
+default is the paper's unit's) an estimate is centimetres off (docs/real_sensors.md), and the pixel median over
+scenes that touch (``photometric.background_from_images``) recovers only part of that.
 
 Each of the frames is read against their pixel median (``contact_patch.image_to_patch``; the median, not the
 mean, so that one pressed frame leaves no trace in what the others are read against): a frame that shows a
