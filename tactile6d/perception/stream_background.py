@@ -18,10 +18,14 @@ before the fingers touch.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from tactile6d.core.errors import InputError
-from tactile6d.perception.contact_patch import PatchModel, check_image, image_to_patch
+
+if TYPE_CHECKING:
+    from tactile6d.perception.contact_patch import PatchModel
 
 MIN_FRAMES = 5  # fewer leave the mean's noise near a single frame's, and a press in one of them barely diluted
 DEFAULT_FRAMES = 15  # half a second at 30 frames per second
@@ -35,6 +39,9 @@ def still_frames_to_background(frames, model: PatchModel | None = None, sensor: 
     sensor: its index, for the errors. Raises InputError for fewer than ``MIN_FRAMES`` frames, a bad image,
     or a frame that reads a contact against the median.
     """
+    # contact_patch loads the renderer (trimesh): not for `tactile6d track --help`, which reads this module's constants
+    from tactile6d.perception.contact_patch import check_image, image_to_patch
+
     name = "the stream" if sensor is None else f"sensor {sensor}'s stream"
     if len(frames) < MIN_FRAMES:
         raise InputError(f"{name}: {len(frames)} frames to take a no-contact image from; at least {MIN_FRAMES} "
