@@ -368,8 +368,8 @@ def difference_to_mask(smooth: np.ndarray, noise: float, model: PatchModel) -> n
     Hysteresis: connected regions of ``|D| > grow_level * s`` kept when they contain a pixel over
     ``seed_level * s`` and at least ``min_area`` pixels, with ``s`` the smoothed noise's std (per channel,
     ``smoothed_difference_noise``, at least that of ``MIN_NOISE``; the magnitude of 3-channel noise alone is
-    about 1.6 s), and at least ``SPECK_FRACTION`` of the largest such region's. Then holes are filled (a flat
-    face pressed square leaves a faint centre) and the outline is closed morphologically.
+    about 1.6 s), and at least ``SPECK_FRACTION`` of the largest such region's. Then holes are filled (a flat face pressed square leaves a faint centre) and the outline is
+    closed morphologically.
     """
     s = max(smoothed_difference_noise(smooth, noise, model.mask_sigma), smoothed_noise(MIN_NOISE, model.mask_sigma))
     magnitude = _magnitude(smooth)

@@ -57,7 +57,7 @@ PRIOR_WEIGHT = 1e-3  # per block, the weight of (b - 1)^2 beside the squared log
 VALID = (8.0, 247.0)  # block means outside this are clipped or nearly so, and not used
 
 # Grey levels: a fit that moves an image by less, on average, is not applied (align_images). Under the no-contact
-# image's own light the fit, which a press biases, moves an image by 1.28 grey levels at most on this renderer's
+# image's own light the fit, which a press biases, moves an image by 1.2 grey levels at most on this renderer's
 # scene sets and 1.53 on TACTO's (the paper's triplets); a press over most of the gel is taken for a change of
 # light at 2.5 or more (real_sensors.md). A light 1.5 % dimmer, or 1.5-2 grey levels darker, moves it by 1.85-2.0:
 # below 2.5 it was read as given, and so slight a change the contact mask reads as contact over the whole gel.
@@ -65,9 +65,9 @@ MIN_CHANGE = 1.75
 # The share of an image's blocks, or of its rim's, that must follow its fit for its no-contact image to be
 # taken for its own unit's. Measured on generated sets of two units (docs/real_sensors.md): against their own
 # unit's no-contact image, at least 18 % of each image or of its rim follows (also on scenes pressed 2-3 mm
-# deep, which leave the gel's corners only); against the other unit's (the paper's DIGIT or TACTO's, also
-# mirrored or turned) at most 4.6 % of the image and 5.8 % of the rim: the joint search finds the combination of
-# lines that the most blocks follow, and against another unit's pattern a few more happen to. The threshold sits between the two, a factor of
+# deep, which leave the gel's corners only); against the other unit's (the paper's DIGIT or TACTO's, also mirrored or turned) at most 4.6 % of
+# the image and 5.8 % of the rim: the joint search finds the combination of lines that the most blocks follow,
+# and against another unit's pattern a few more happen to. The threshold sits between the two, a factor of
 # about 1.7 from each.
 MIN_AGREEMENT = 0.10
 RIM = 3  # blocks: the image's rim, where a press reaches last (12 pixels)
