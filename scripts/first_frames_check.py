@@ -70,10 +70,11 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(args.out)
     root.mkdir(parents=True, exist_ok=True)
     unit = compose_config([*args.overrides, f"render.background={args.background}"])
-    bgr = load_background_bgr(unit, DataStore(unit.paths))
-    noisy = DigitRenderer.from_config(unit.render, bgr, workers=1)
-    write_tactile_image(root / "own.png", DigitRenderer.from_config(unit.render, bgr, workers=1,
-                                                                    noise_std=0.0).no_contact(0))
+    noisy = DigitRenderer.from_config(unit.render, load_background_bgr(unit, DataStore(unit.paths)), workers=1)
+    # The unit's own no-contact image exactly as the renderer put it under the images (RGB, resized).
+    write_tactile_image(root / "own.png", np.clip(np.rint(noisy.background), 0, 255).astype(np.uint8))
+    given = {"none": [], "own": ["--background", str(root / "own.png")],
+             "first-frames": ["--background", "first-frames", "--background-frames", str(args.still)]}
     seqs = read_artifact(args.sequences, "sequences")
     fps = float(seqs["fps"])
     per_way: dict[str, list[np.ndarray]] = {way: [] for way in WAYS}
@@ -87,9 +88,8 @@ def main(argv: list[str] | None = None) -> int:
                                np.concatenate([still, seqs["images"][q]]), fps=fps)
         truth = seqs["T_world_object"][q][:, :3, 3]
         for way in WAYS:
-            given = {"none": [], "own": ["--background", str(root / "own.png")],
-                     "first-frames": ["--background", "first-frames", "--background-frames", str(args.still)]}[way]
-            argv_q = ["--object", obj, "--sequence", str(folder), "--artifacts", args.artifacts, *given, *args.overrides]
+            argv_q = ["--object", obj, "--sequence", str(folder), "--artifacts", args.artifacts, *given[way],
+                      *args.overrides]
             positions = tracked_positions(argv_q, root / f"q{q}_{way}.jsonl")[args.still:]
             errors = np.linalg.norm(positions - truth, axis=1)
             per_way[way].append(errors)
