@@ -23,7 +23,11 @@ with), drawn from ``--seed``:
   those of the true poses;
 - ``jpeg``: every image and no-contact image JPEG-compressed at quality 80, as a DIGIT's MJPEG stream
   delivers them (``perturb.through_camera``); ``jpeg60`` and ``jpeg90`` at quality 60 and 90;
-- ``blur``: every image and no-contact image blurred by a Gaussian of 1 pixel (a lens slightly out of focus).
+- ``blur``: every image and no-contact image blurred by a Gaussian of 1 pixel (a lens slightly out of focus);
+- ``recorded+1``, ``recorded-1``: each sensor's no-contact image one grey level brighter or darker than the
+  images' exposure (every pixel; recorded at another exposure step, or rounded where the camera truncates): too
+  small a change for the light's fit to be applied, left to ``photometric``'s untouched level (``--no-level-shift``:
+  as before it, every image read at its level).
 
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
 the evaluation scores it; one JSON line per condition: the positional error of the best pose, mean and
@@ -62,7 +66,7 @@ from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
 from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
-CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90", "slight")
+CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90", "slight", "recorded+1", "recorded-1")
 ISSUE_CONDITIONS = CONDITIONS[:4]  # issue 34's table: the default
 JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60, "jpeg90": 90}
 BLUR_SIGMA = 1.0  # pixels
@@ -70,6 +74,7 @@ NOISE_STD = 2.0  # grey levels
 GAIN_MAX, GAMMA_RANGE = 0.10, (0.83, 1.20)
 SLIGHT_GAIN_MAX = 0.03  # condition slight: gains only, 1 +- 0.03 per channel
 SIGMA_MM, SIGMA_DEG = 1.5, 1.5
+RECORDED = {"recorded+1": 1, "recorded-1": -1}  # grey levels added to every no-contact image
 ADI_WITHIN = 0.02  # m: the share of scenes whose best pose is this close (ADI) is reported
 
 
@@ -91,6 +96,9 @@ def real_set_up(scene_set: scenes.SceneSet, condition: str, background: np.ndarr
         return perturb.through_camera(scene_set, background, jpeg_quality=JPEG_QUALITY[condition])
     if condition == "blur":
         return perturb.through_camera(scene_set, background, blur_sigma=BLUR_SIGMA)
+    if condition in RECORDED:
+        shifted = np.clip(background.astype(np.int16) + RECORDED[condition], 0, 255).astype(np.uint8)
+        return replace(scene_set, backgrounds=np.broadcast_to(shifted, scene_set.images.shape))
     raise ValueError(f"unknown condition {condition!r}; choose from {CONDITIONS}")
 
 
@@ -144,8 +152,12 @@ def main() -> int:
     parser.add_argument("--light-fits", action="store_true", help="also how well the light was fitted (module docstring)")
     parser.add_argument("--out", help="write each condition's per-scene errors to OUT<condition>.npz (as eval_accuracy.py "
                                       "--out does), for scripts/compare_errors.py")
+    parser.add_argument("--no-level-shift", action="store_true",
+                        help="leave every image at its untouched level (photometric.LEVEL_TOLERANCE infinite): as before 2026-12-07")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. preset=paper")
     args = parse_with_overrides(parser)
+    if args.no_level_shift:
+        photometric.LEVEL_TOLERANCE = np.inf
 
     cfg = compose_config(args.overrides)
     use_cpu_devices_for(str(cfg.optimize.solver), int(cfg.optimize.cpu_devices))
@@ -177,6 +189,7 @@ def main() -> int:
             light = {"light_fits": light_fit_row(fits, np.concatenate([g for g, _ in drawn]),
                                                  np.concatenate([e for _, e in drawn]))}
         print(json.dumps({"scenes": args.scenes, "condition": condition, "overrides": args.overrides,
+                          **({"no_level_shift": True} if args.no_level_shift else {}),
                           "seed": args.seed, "n": len(clean), "failed": int(failed),
                           **summary_row(errors, clean.objects), **light}), flush=True)
     return 0

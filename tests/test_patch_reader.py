@@ -52,7 +52,7 @@ def test_patches_read_in_workers_are_those_read_here_bit_for_bit(frame):
 @pytest.mark.slow
 def test_an_applied_light_fit_is_applied_before_reading_and_one_not_applied_is_not(frame):
     """read_patch brings an image to its no-contact image's light by its fit where the fit was applied, as the
-    tracker does in this process (photometric.apply_light), and reads it as given otherwise."""
+    tracker does in this process (photometric.apply_fit), and reads it as given otherwise."""
     images, no_contact, model = frame
     drifted = perturb.drift_image_light(images[0], [1.08, 0.93, 1.04], [0.9, 1.1, 1.0])
     aligned, fits = photometric.align_images(drifted[None], no_contact[None])

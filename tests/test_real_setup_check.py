@@ -62,6 +62,15 @@ def test_slight_drifts_each_sensor_by_a_few_percent_of_gain_and_no_gamma():
     assert 1.0 < np.abs(out.images.astype(float) - s.images).mean() < 4.0  # a grey level or two, and the noise
 
 
+@pytest.mark.parametrize("condition, levels", [("recorded+1", 1), ("recorded-1", -1)])
+def test_recorded_gives_every_sensor_the_no_contact_image_a_grey_level_off_and_nothing_else(condition, levels):
+    s = small_set()
+    out = check.real_set_up(s, condition, BACKGROUND, np.random.default_rng(0))
+    assert out.backgrounds.shape == s.images.shape
+    assert set(np.unique(out.backgrounds.astype(int) - BACKGROUND)) == {levels}
+    assert out.images is s.images and out.T_world_sensors is s.T_world_sensors
+
+
 def test_kinematic_moves_the_sensor_poses_by_the_declared_sigmas_and_keeps_the_images():
     s = small_set(n=3, L=3)
     out = check.real_set_up(s, "kinematic", BACKGROUND, np.random.default_rng(0))

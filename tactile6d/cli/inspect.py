@@ -179,6 +179,9 @@ def sensor_lines(i: int, reading: SensorReading) -> list[str]:
         gain = "/".join(f"{v:.2f}" for v in fit.gain)
         gamma = "/".join(f"{v:.2f}" for v in fit.gamma)
         state = "aligned" if fit.applied else "left as given"
+        if fit.level_shift is not None:
+            state += (f", then shifted by {'/'.join(f'{v:+.2f}' for v in fit.level_shift)} grey levels onto the level at "
+                      "which the renderer's untouched gel sits against its no-contact image")
         lines.append(f"  light: gain {gain}, gamma {gamma} (R/G/B) against its no-contact image, which "
                      f"{100 * fit.agreement:.0f} % of the image and {100 * fit.rim_agreement:.0f} % of its rim follow; {state}")
     lines += [f"  light warning: {p}" for p in reading.light_problems]

@@ -378,11 +378,11 @@ class Tracker:
         return self._light if self._light is not None and len(self._light) == n_sensors else None
 
     def _apply_light(self, images: np.ndarray) -> np.ndarray:
-        """The images under their no-contact images' light, by the last fits where they were applied."""
+        """The images under their no-contact images' light and level, by the last fits (``photometric.apply_fit``)."""
         fits = self._light_fits(len(images))
         if fits is None:
             return images
-        return np.stack([photometric.apply_light(im, fit) if fit.applied else im for im, fit in zip(images, fits)])
+        return np.stack([photometric.apply_fit(im, fit) for im, fit in zip(images, fits)])
 
     def _read_contacts(self, T: np.ndarray, images: np.ndarray, per_sensor: np.ndarray | None) -> Contacts:
         """The sensors' contacts (``Estimator.contacts``), the images' patches read in parallel."""

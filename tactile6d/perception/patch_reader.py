@@ -26,10 +26,11 @@ from tactile6d.runtime.executor import cancel_unless_interrupted, shutdown_pool,
 
 def read_patch(image: np.ndarray, no_contact: np.ndarray, fit: photometric.LightFit | None,
                model: PatchModel) -> ContactPatch:
-    """One image's contact patch: image (320, 240, 3) uint8 RGB, brought to its no-contact image's light by
-    ``fit`` where the fit was applied (None: read as given), then read against no_contact (320, 240, 3)."""
-    if fit is not None and fit.applied:
-        image = photometric.apply_light(image, fit)
+    """One image's contact patch: image (320, 240, 3) uint8 RGB, brought to its no-contact image's light and
+    level by ``fit`` as ``align_images`` did (``photometric.apply_fit``; None: read as given), then read against
+    no_contact (320, 240, 3)."""
+    if fit is not None:
+        image = photometric.apply_fit(image, fit)
     return image_to_patch(image, no_contact, model)
 
 

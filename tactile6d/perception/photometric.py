@@ -28,6 +28,14 @@ lookup table per channel.
 (``MAX_DRIFT``) is not, and is more often a press that covers nearly the whole gel, whose colours the
 fit took for the light; such a fit is reported (``LightWarning``) and not applied.
 
+Below what the fit can tell from a press, a uniform offset of a grey level or so still changes what the estimator
+reads (the contact mask's thresholds sit about 2 grey levels of the smoothed difference above the noise): a no-contact
+image recorded a grey level brighter or darker than today's exposure, or one from a camera that rounds its values where
+the renderer truncates them. After the fit, the level at which the untouched gel sits against its no-contact image is
+measured on the blocks that follow the fit (``untouched_level``); where it is ``LEVEL_TOLERANCE`` or more off the level
+of the renderer's own images (``UNTOUCHED_LEVEL``), on which the databases, the autoencoder and the mask's thresholds
+were made, the image is shifted onto it (``add_levels``: fractions of a grey level by ordered dithering).
+
 A no-contact image of another unit than the image's is told by how little of the image follows the fit:
 its LEDs light the gel in another pattern, which no change of light per channel maps onto this unit's, so
 only scattered blocks agree with it by chance, where an image of the same unit agrees wherever the gel is
@@ -37,7 +45,7 @@ not pressed (``LightFit.from_another_unit``, ``unit_problems``; a ``UnitWarning`
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -57,7 +65,7 @@ PRIOR_WEIGHT = 1e-3  # per block, the weight of (b - 1)^2 beside the squared log
 VALID = (8.0, 247.0)  # block means outside this are clipped or nearly so, and not used
 
 # Grey levels: a fit that moves an image by less, on average, is not applied (align_images). Under the no-contact
-# image's own light the fit, which a press biases, moves an image by 1.2 grey levels at most on this renderer's
+# image's own light the fit, which a press biases, moves an image by 1.28 grey levels at most on this renderer's
 # scene sets and 1.53 on TACTO's (the paper's triplets); a press over most of the gel is taken for a change of
 # light at 2.5 or more (real_sensors.md). A light 1.5 % dimmer, or 1.5-2 grey levels darker, moves it by 1.85-2.0:
 # below 2.5 it was read as given, and so slight a change the contact mask reads as contact over the whole gel.
@@ -65,12 +73,27 @@ MIN_CHANGE = 1.75
 # The share of an image's blocks, or of its rim's, that must follow its fit for its no-contact image to be
 # taken for its own unit's. Measured on generated sets of two units (docs/real_sensors.md): against their own
 # unit's no-contact image, at least 18 % of each image or of its rim follows (also on scenes pressed 2-3 mm
-# deep, which leave the gel's corners only); against the other unit's (the paper's DIGIT or TACTO's, also mirrored or turned) at most 4.6 % of
-# the image and 5.8 % of the rim: the joint search finds the combination of lines that the most blocks follow,
-# and against another unit's pattern a few more happen to. The threshold sits between the two, a factor of
+# deep, which leave the gel's corners only); against the other unit's (the paper's DIGIT or TACTO's, also
+# mirrored or turned) at most 4.6 % of the image and 5.8 % of the rim: the joint search finds the combination
+# of lines that the most blocks follow, and against another unit's pattern a few more happen to. The threshold sits between the two, a factor of
 # about 1.7 from each.
 MIN_AGREEMENT = 0.10
 RIM = 3  # blocks: the image's rim, where a press reaches last (12 pixels)
+
+# Grey levels (R, G, B): where the gel is not touched, how far the renderer's images sit from their no-contact image,
+# as ``untouched_level`` measures it. The renderer adds its camera noise and truncates the sum (render.add_noise, as
+# TACTO does), which takes half a grey level off every channel; the measure reads green and blue another 0.05-0.15
+# lower on the pipeline's scenes. The mean over validation's 120 images (per image, a spread of 0.09 in red and 0.15
+# in green and blue; docs/real_sensors.md).
+UNTOUCHED_LEVEL = np.array([-0.51, -0.63, -0.65])
+# Grey levels, the mean over channels: an image whose untouched level is this far or farther from UNTOUCHED_LEVEL
+# is shifted onto it (align_images). The pipeline's scene sets' images under their own light sit within 0.28 of it
+# (validation, offaxis, kinematic, calibration), the variation set's after their fit within 0.7, the paper's TACTO
+# triplets within 0.4: none of them is shifted. A no-contact image one grey level off moves it by about 1.
+LEVEL_TOLERANCE = 0.75
+# The ordered-dither thresholds (a 4 x 4 Bayer matrix, in (0, 1)) with which ``add_levels`` rounds a fractional shift:
+# over every 4 x 4 block of pixels the shift comes out whole to a 16th of a grey level.
+BAYER = (np.array([[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]]) + 0.5) / 16.0
 
 # Beyond these the light is not what a unit's LEDs drift to: its reading cannot be trusted.
 MAX_DRIFT = {"gain": (0.67, 1.5), "gamma": (0.67, 1.5)}
@@ -84,7 +107,11 @@ class LightFit:
     residual: (3,) robust standard deviation, grey levels, of the no-contact image about the fitted
     mapping on the blocks that follow it; outliers: share of the blocks that do not (contact, or a
     no-contact image of another unit); applied: whether the image was changed (``align_images``);
-    rim_agreement: share of the blocks within ``RIM`` of the image's edge that follow the fit.
+    rim_agreement: share of the blocks within ``RIM`` of the image's edge that follow the fit; inliers:
+    (rows, cols) bool, the blocks (``BLOCK`` pixels a side) that follow it; level: (3,) grey levels, the
+    untouched gel's level against the no-contact image after the fit (``untouched_level``; None where not
+    measured); level_shift: (3,) grey levels added to the image after the fit to bring that level to
+    ``UNTOUCHED_LEVEL`` (``add_levels``), None where it was not shifted.
     """
 
     log_gain: np.ndarray
@@ -93,6 +120,9 @@ class LightFit:
     outliers: float
     applied: bool = True
     rim_agreement: float = 1.0
+    inliers: np.ndarray | None = field(default=None, repr=False)
+    level: np.ndarray | None = None
+    level_shift: np.ndarray | None = None
 
     @property
     def gain(self) -> np.ndarray:
@@ -136,7 +166,9 @@ class LightFit:
         """Plain numbers for JSON output."""
         return {"gain": self.gain.round(4).tolist(), "gamma": self.gamma.round(4).tolist(),
                 "residual": self.residual.round(2).tolist(), "outliers": round(float(self.outliers), 4),
-                "applied": self.applied, "another_unit": self.from_another_unit}
+                "applied": self.applied, "another_unit": self.from_another_unit,
+                "level": None if self.level is None else np.round(self.level, 2).tolist(),
+                "level_shift": None if self.level_shift is None else np.round(self.level_shift, 2).tolist()}
 
 
 def _rgb(values: np.ndarray) -> str:
@@ -306,7 +338,7 @@ def fit_light(image: np.ndarray, background: np.ndarray) -> LightFit:
     rim = np.ones(shape, dtype=bool)
     rim[RIM:-RIM, RIM:-RIM] = False
     return LightFit(lines[:, 0].copy(), lines[:, 1].copy(), residual, float(outlier.mean()),
-                    rim_agreement=float(1.0 - outlier[rim].mean()))
+                    rim_agreement=float(1.0 - outlier[rim].mean()), inliers=inliers.reshape(shape))
 
 
 def lookup_tables(fit: LightFit) -> np.ndarray:
@@ -326,19 +358,65 @@ def apply_light(image: np.ndarray, fit: LightFit) -> np.ndarray:
     return out
 
 
+def untouched_level(image: np.ndarray, background: np.ndarray, inliers: np.ndarray) -> np.ndarray | None:
+    """(3,) grey levels: per channel, the median over the blocks ``inliers`` (rows, cols) bool (a fit's, the gel
+    it does not press) of image (H, W, 3) uint8 - background (H, W, 3) uint8, each block's mean first (``BLOCK``).
+    None when fewer than 10 blocks are given."""
+    if np.count_nonzero(inliers) < 10:
+        return None
+    return np.median((block_means(image) - block_means(background))[inliers], axis=0)
+
+
+def add_levels(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """image (H, W, 3) uint8 + shift (3,) grey levels per channel -> uint8, clipped to 0..255. A fraction of a
+    grey level is rounded by ordered dithering (``BAYER``): up at that share of the pixels, spread evenly, so that
+    any 4 x 4 block of pixels moves by the shift to a 16th of a grey level; a whole shift moves every pixel by it."""
+    h, w = image.shape[:2]
+    thresholds = np.tile(BAYER, (h // 4 + 1, w // 4 + 1))[:h, :w, None]
+    shifted = np.floor(image + np.asarray(shift, dtype=np.float64)[None, None, :] + thresholds)
+    return np.clip(shifted, 0, 255).astype(np.uint8)
+
+
+def apply_fit(image: np.ndarray, fit: LightFit) -> np.ndarray:
+    """image (H, W, 3) uint8 -> what ``align_images`` made of it with this fit: brought to the no-contact image's
+    light where the fit was applied (``apply_light``), then shifted by its ``level_shift`` where it has one. For
+    images of the same unit after the one fitted (a stream's next frames)."""
+    out = apply_light(image, fit) if fit.applied else image
+    return out if fit.level_shift is None else add_levels(out, fit.level_shift)
+
+
+def shift_to_untouched_level(image: np.ndarray, background: np.ndarray, fit: LightFit) -> tuple[np.ndarray, LightFit]:
+    """An image (H, W, 3) uint8 after its fit (as ``align_images`` leaves it) and its no-contact image (H, W, 3)
+    uint8 -> (the image, shifted onto ``UNTOUCHED_LEVEL`` where its ``untouched_level`` is ``LEVEL_TOLERANCE`` or
+    more off it on average over channels; the fit with its ``level`` and ``level_shift``). Left as it is: an image
+    whose fit is not trustworthy or whose no-contact image looks like another unit's (its blocks that follow the
+    fit are then not the untouched gel)."""
+    if fit.inliers is None or not fit.trustworthy or fit.from_another_unit:
+        return image, fit
+    level = untouched_level(image, background, fit.inliers)
+    if level is None:
+        return image, fit
+    shift = UNTOUCHED_LEVEL - level
+    if abs(float(shift.mean())) < LEVEL_TOLERANCE:
+        return image, replace(fit, level=level)
+    return add_levels(image, shift), replace(fit, level=level, level_shift=shift)
+
+
 def align_images(images: np.ndarray, backgrounds: np.ndarray) -> tuple[np.ndarray, list[LightFit]]:
     """Each image (L, H, W, 3) uint8 brought to its own no-contact image's light (backgrounds (L, H, W, 3)
     uint8, one per image) -> (aligned images (L, H, W, 3) uint8, each image's ``LightFit``). Left as it
     is (``applied`` False): an image whose fit is not trustworthy, and one the fit would change by less
     than ``MIN_CHANGE`` grey levels on average: on images under their no-contact image's own light the
     fit, which a large press biases, moves them by about 1 grey level, and reading them so cost accuracy
-    (docs/real_sensors.md)."""
+    (docs/real_sensors.md). Then each is shifted onto the renderer's untouched level where it is far off it
+    (``shift_to_untouched_level``)."""
     out, fits = [], []
     for image, background in zip(images, backgrounds):
         fit = fit_light(image, background)
         aligned = apply_light(image, fit)
         if not fit.trustworthy or np.abs(aligned.astype(np.int16) - image).mean() < MIN_CHANGE:
             aligned, fit = image, replace(fit, applied=False)
+        aligned, fit = shift_to_untouched_level(aligned, background, fit)
         out.append(aligned)
         fits.append(fit)
     return np.stack(out), fits
