@@ -163,6 +163,32 @@ def test_untouched_level_is_the_median_over_the_inlier_blocks_of_their_differenc
     assert photometric.untouched_level(image, background, np.zeros((10, 8), dtype=bool)) is None
 
 
+@pytest.mark.parametrize("gain, offset", [(1.0, -1), (1.0, 0), (0.85, 0)])
+def test_align_images_does_what_its_steps_do_one_by_one(gain, offset):
+    """``align_images`` makes each image's block means once for the fit and the untouched level: its result is the
+    naive sequence's (``fit_light``, ``apply_light`` where applied, ``untouched_level`` of the image so left,
+    ``add_levels``), bit for bit: where the fit is not applied and the image is shifted (its no-contact image a grey
+    level darker), where neither happens, and where the fit is applied (a dimmer light)."""
+    background = noisy(colourful_background(), 1.0, 3)
+    image = noisy(np.clip(colourful_background() * gain, 0, 255), 2.0, 4)
+    image[100:180, 80:160] //= 2  # a press's blob, which the fit leaves out
+    recorded = np.clip(background.astype(np.int16) + offset, 0, 255).astype(np.uint8)
+    aligned, (fit,) = photometric.align_images(image[None], recorded[None])
+
+    naive = photometric.fit_light(image, recorded)
+    moved = photometric.apply_light(image, naive)
+    applied = naive.trustworthy and np.abs(moved.astype(np.int16) - image).mean() >= photometric.MIN_CHANGE
+    expected = moved if applied else image
+    level = photometric.untouched_level(expected, recorded, naive.inliers)
+    shift = photometric.UNTOUCHED_LEVEL - level
+    if abs(shift.mean()) >= photometric.LEVEL_TOLERANCE:
+        expected = photometric.add_levels(expected, shift)
+    assert fit.applied == applied == (gain != 1.0)
+    assert np.array_equal(fit.level, level) and np.array_equal(fit.inliers, naive.inliers)
+    assert (fit.level_shift is not None) == (offset != 0)
+    assert np.array_equal(aligned[0], expected)
+
+
 # --- the fit -------------------------------------------------------------------------------------------
 
 

@@ -308,13 +308,18 @@ def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray, prior: float) ->
 
 
 def fit_light(image: np.ndarray, background: np.ndarray) -> LightFit:
-    """How image (H, W, 3) uint8's light differs from its no-contact image background (H, W, 3) uint8.
+    """How image (H, W, 3) uint8's light differs from its no-contact image background (H, W, 3) uint8
+    (``fit_light_on_blocks`` of their ``block_means``)."""
+    return fit_light_on_blocks(block_means(image), block_means(background))
+
+
+def fit_light_on_blocks(rec: np.ndarray, exp_: np.ndarray) -> LightFit:
+    """``fit_light`` from the ``block_means`` (rows, cols, 3) of the image (rec) and of its no-contact image (exp_).
 
     On blocks usable in every channel (``VALID``), each weighed by ``border_weights``: each channel's
     ``line_candidates`` from a quarter of them (``SEARCH_STRIDE``), the combination that the most of all of
     them follow in every channel at once (``joint_lines``), refined on the blocks near it (``refine_lines``).
     Fewer than 10 usable blocks: no change (gain and gamma 1), every block counted outside the fit."""
-    rec, exp_ = block_means(image), block_means(background)
     shape = rec.shape[:2]
     x = np.log(np.maximum(rec.reshape(-1, 3), 0.5) / 255.0)
     y = np.log(np.maximum(exp_.reshape(-1, 3), 0.5) / 255.0)
@@ -362,9 +367,15 @@ def untouched_level(image: np.ndarray, background: np.ndarray, inliers: np.ndarr
     """(3,) grey levels: per channel, the median over the blocks ``inliers`` (rows, cols) bool (a fit's, the gel
     it does not press) of image (H, W, 3) uint8 - background (H, W, 3) uint8, each block's mean first (``BLOCK``).
     None when fewer than 10 blocks are given."""
+    return untouched_level_on_blocks(block_means(image), block_means(background), inliers)
+
+
+def untouched_level_on_blocks(image_blocks: np.ndarray, background_blocks: np.ndarray,
+                              inliers: np.ndarray) -> np.ndarray | None:
+    """``untouched_level`` from the ``block_means`` (rows, cols, 3) of the image and of its no-contact image."""
     if np.count_nonzero(inliers) < 10:
         return None
-    return np.median((block_means(image) - block_means(background))[inliers], axis=0)
+    return np.median((image_blocks - background_blocks)[inliers], axis=0)
 
 
 def add_levels(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
@@ -385,15 +396,19 @@ def apply_fit(image: np.ndarray, fit: LightFit) -> np.ndarray:
     return out if fit.level_shift is None else add_levels(out, fit.level_shift)
 
 
-def shift_to_untouched_level(image: np.ndarray, background: np.ndarray, fit: LightFit) -> tuple[np.ndarray, LightFit]:
-    """An image (H, W, 3) uint8 after its fit (as ``align_images`` leaves it) and its no-contact image (H, W, 3)
-    uint8 -> (the image, shifted onto ``UNTOUCHED_LEVEL`` where its ``untouched_level`` is ``LEVEL_TOLERANCE`` or
-    more off it on average over channels; the fit with its ``level`` and ``level_shift``). Left as it is: an image
-    whose fit is not trustworthy or whose no-contact image looks like another unit's (its blocks that follow the
-    fit are then not the untouched gel)."""
+def shift_to_untouched_level(image: np.ndarray, background_blocks: np.ndarray, fit: LightFit,
+                             image_blocks: np.ndarray | None = None) -> tuple[np.ndarray, LightFit]:
+    """An image (H, W, 3) uint8 after its fit (as ``align_images`` leaves it) and its no-contact image's
+    ``block_means`` (rows, cols, 3) -> (the image, shifted onto ``UNTOUCHED_LEVEL`` where its ``untouched_level`` is
+    ``LEVEL_TOLERANCE`` or more off it on average over channels; the fit with its ``level`` and ``level_shift``).
+    image_blocks: the image's ``block_means`` where already made (the fit's own, when it was not applied). Left as it
+    is: an image whose fit is not trustworthy or whose no-contact image looks like another unit's (its blocks that
+    follow the fit are then not the untouched gel)."""
     if fit.inliers is None or not fit.trustworthy or fit.from_another_unit:
         return image, fit
-    level = untouched_level(image, background, fit.inliers)
+    if image_blocks is None:
+        image_blocks = block_means(image)
+    level = untouched_level_on_blocks(image_blocks, background_blocks, fit.inliers)
     if level is None:
         return image, fit
     shift = UNTOUCHED_LEVEL - level
@@ -412,11 +427,15 @@ def align_images(images: np.ndarray, backgrounds: np.ndarray) -> tuple[np.ndarra
     (``shift_to_untouched_level``)."""
     out, fits = [], []
     for image, background in zip(images, backgrounds):
-        fit = fit_light(image, background)
+        # Each image's and no-contact image's block means are made once, for the fit and the untouched level.
+        image_blocks, background_blocks = block_means(image), block_means(background)
+        fit = fit_light_on_blocks(image_blocks, background_blocks)
         aligned = apply_light(image, fit)
         if not fit.trustworthy or np.abs(aligned.astype(np.int16) - image).mean() < MIN_CHANGE:
             aligned, fit = image, replace(fit, applied=False)
-        aligned, fit = shift_to_untouched_level(aligned, background, fit)
+        else:
+            image_blocks = None  # the image changed: its level is read on the aligned image's blocks
+        aligned, fit = shift_to_untouched_level(aligned, background_blocks, fit, image_blocks)
         out.append(aligned)
         fits.append(fit)
     return np.stack(out), fits
