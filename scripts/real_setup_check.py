@@ -28,6 +28,11 @@ with), drawn from ``--seed``:
   images' exposure (every pixel; recorded at another exposure step, or rounded where the camera truncates): too
   small a change for the light's fit to be applied, left to ``photometric``'s untouched level (``--no-level-shift``:
   as before it, every image read at its level).
+- ``shading``, ``shading10``: light that changed unevenly over the gel, as when one of a DIGIT's LEDs, each on its
+  own side, dims or brightens more than the others: each sensor's gain per channel a ramp across the image, 1 at
+  the centre and 1 +- 0.05 (``shading10``: 0.10) at the edge the ramp points to, in a direction drawn per channel;
+  then noise 2, the no-contact image not recorded again (``shade_image``). The light's fit models one gain and
+  gamma per channel for the whole image, not this.
 
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
 the evaluation scores it; one JSON line per condition: the positional error of the best pose, mean and
@@ -66,7 +71,8 @@ from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
 from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
-CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90", "slight", "recorded+1", "recorded-1")
+CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90", "slight", "recorded+1", "recorded-1",
+              "shading", "shading10")
 ISSUE_CONDITIONS = CONDITIONS[:4]  # issue 34's table: the default
 JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60, "jpeg90": 90}
 BLUR_SIGMA = 1.0  # pixels
@@ -75,6 +81,7 @@ GAIN_MAX, GAMMA_RANGE = 0.10, (0.83, 1.20)
 SLIGHT_GAIN_MAX = 0.03  # condition slight: gains only, 1 +- 0.03 per channel
 SIGMA_MM, SIGMA_DEG = 1.5, 1.5
 RECORDED = {"recorded+1": 1, "recorded-1": -1}  # grey levels added to every no-contact image
+SHADING = {"shading": 0.05, "shading10": 0.10}  # the ramp's gain change from the image centre to its edge
 ADI_WITHIN = 0.02  # m: the share of scenes whose best pose is this close (ADI) is reported
 
 
@@ -96,10 +103,46 @@ def real_set_up(scene_set: scenes.SceneSet, condition: str, background: np.ndarr
         return perturb.through_camera(scene_set, background, jpeg_quality=JPEG_QUALITY[condition])
     if condition == "blur":
         return perturb.through_camera(scene_set, background, blur_sigma=BLUR_SIGMA)
+    if condition in SHADING:
+        return shade_light(scene_set, background, SHADING[condition], rng)
     if condition in RECORDED:
         shifted = np.clip(background.astype(np.int16) + RECORDED[condition], 0, 255).astype(np.uint8)
         return replace(scene_set, backgrounds=np.broadcast_to(shifted, scene_set.images.shape))
     raise ValueError(f"unknown condition {condition!r}; choose from {CONDITIONS}")
+
+
+def shade_image(image: np.ndarray, slopes: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """image (H, W, 3) uint8 under light whose gain varies across it: per channel c a ramp ``1 + slopes[c] t``,
+    t the pixel's position along the direction ``angles[c]`` (rad, in the image plane), scaled so that t = 1 where
+    the direction meets the image's edge from its centre (and -1 opposite); slopes, angles (3,). Rounded to 8 bits.
+    Kept with this check rather than in ``tactile6d.sim.perturb`` while no generated set is made with it."""
+    h, w = image.shape[:2]
+    v = (np.arange(h) + 0.5) / h * 2.0 - 1.0
+    u = (np.arange(w) + 0.5) / w * 2.0 - 1.0
+    out = np.empty(image.shape, dtype=np.float64)
+    for c in range(3):
+        d = np.array([np.cos(angles[c]), np.sin(angles[c])])  # (row, col) direction
+        t = (v[:, None] * d[0] + u[None, :] * d[1]) / np.abs(d).max()  # 1 at the edge the direction points to
+        out[..., c] = image[..., c] * (1.0 + slopes[c] * t)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def shade_light(scene_set: scenes.SceneSet, background: np.ndarray, slope_max: float,
+                rng: np.random.Generator) -> scenes.SceneSet:
+    """``scene_set`` with each sensor's light shaded (``shade_image``: per channel a slope of ``slope_max`` in a
+    direction drawn uniformly), then camera noise ``NOISE_STD``; each sensor's no-contact image the one rendered
+    over, background (320, 240, 3) uint8 RGB, or the set's own, not recorded again."""
+    n, L = scene_set.images.shape[:2]
+    slopes, angles = np.full((n, L, 3), slope_max), rng.uniform(0.0, 2.0 * np.pi, (n, L, 3))
+    images = np.empty_like(scene_set.images)
+    backgrounds = np.empty_like(scene_set.images)
+    for s in range(n):
+        own = scene_set.backgrounds_of(s)
+        for i in range(L):
+            images[s, i] = perturb.add_camera_noise(shade_image(scene_set.images[s, i], slopes[s, i], angles[s, i]),
+                                                    NOISE_STD, rng)
+            backgrounds[s, i] = background if own is None else own[i]
+    return replace(scene_set, images=images, backgrounds=backgrounds)
 
 
 def drift_drawn(scene_set: scenes.SceneSet, s: int) -> tuple[np.ndarray, np.ndarray]:

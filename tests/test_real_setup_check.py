@@ -150,3 +150,40 @@ def test_the_per_scene_errors_written_are_what_compare_errors_pairs(tmp_path):
     np.testing.assert_array_equal(compare.best_position_cm(str(tmp_path / "base-light.npz")), [0.4, 3.0, np.nan])
     with np.load(tmp_path / "base-light.npz") as data:
         assert data["objects"].tolist() == ["a", "a", "b"]
+
+
+def test_shade_image_is_a_ramp_of_gain_per_channel_against_a_loop():
+    """1 at the centre, 1 + slope where the direction meets the edge, 1 - slope opposite; each channel its own."""
+    rng = np.random.default_rng(3)
+    image = rng.integers(50, 200, (16, 12, 3), dtype=np.uint8)
+    slopes, angles = np.array([0.05, 0.1, 0.08]), np.array([0.0, np.pi / 2, 2.5])
+    out = check.shade_image(image, slopes, angles)
+    expected = np.empty(image.shape, dtype=np.uint8)
+    for r in range(16):
+        for col in range(12):
+            v, u = (r + 0.5) / 16 * 2 - 1, (col + 0.5) / 12 * 2 - 1
+            for c in range(3):
+                d = np.array([np.cos(angles[c]), np.sin(angles[c])])
+                t = (v * d[0] + u * d[1]) / np.abs(d).max()
+                expected[r, col, c] = np.clip(np.rint(image[r, col, c] * (1 + slopes[c] * t)), 0, 255)
+    np.testing.assert_array_equal(out, expected)
+    flat = np.full((16, 12, 3), 100, np.uint8)
+    ramp = check.shade_image(flat, slopes, angles).astype(int)
+    assert ramp[-1, :, 0].min() >= 104 and ramp[0, :, 0].max() <= 96  # channel 0 brighter towards the last row
+    assert ramp[:, -1, 1].min() >= 109 and ramp[:, 0, 1].max() <= 91  # channel 1 towards the last column
+
+
+@pytest.mark.parametrize("condition", ["shading", "shading10"])
+def test_shading_changes_the_light_unevenly_and_keeps_the_old_no_contact_image(condition):
+    s = small_set()
+    flat = replace(s, images=np.full(s.images.shape, 120, np.uint8))
+    out = check.real_set_up(flat, condition, BACKGROUND, np.random.default_rng(0))
+    np.testing.assert_array_equal(out.backgrounds, np.broadcast_to(BACKGROUND, out.backgrounds.shape))
+    np.testing.assert_array_equal(out.T_world_sensors, s.T_world_sensors)
+    slope = check.SHADING[condition]
+    for image in out.images.reshape(-1, 320, 240, 3):
+        halves = [image[:160].mean(axis=(0, 1)), image[160:].mean(axis=(0, 1)),
+                  image[:, :120].mean(axis=(0, 1)), image[:, 120:].mean(axis=(0, 1))]
+        spread = np.max(np.abs(np.subtract(halves[0], halves[1])) + np.abs(np.subtract(halves[2], halves[3])))
+        assert 0.5 * 120 * slope < spread < 2.5 * 120 * slope  # the halves differ by about the slope
+        assert abs(image.mean() - 120) < 1.0  # about unchanged on average: uneven, not brighter
