@@ -4,6 +4,7 @@ The fast pieces are checked against naive references; the fit against drifts of 
 on synthetic images and on rendered presses, whose contact point must not move."""
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -166,7 +167,7 @@ def test_untouched_level_is_the_median_over_the_inlier_blocks_of_their_differenc
 @pytest.mark.parametrize("gain, offset", [(1.0, -1), (1.0, 0), (0.85, 0)])
 def test_align_images_does_what_its_steps_do_one_by_one(gain, offset):
     """``align_images`` makes each image's block means once for the fit and the untouched level: its result is the
-    naive sequence's (``fit_light``, ``apply_light`` where applied, ``untouched_level`` of the image so left,
+    naive sequence's (``fit_light``, no plane of the light, ``apply_light`` where applied, ``untouched_level`` of the image so left,
     ``add_levels``), bit for bit: where the fit is not applied and the image is shifted (its no-contact image a grey
     level darker), where neither happens, and where the fit is applied (a dimmer light)."""
     background = noisy(colourful_background(), 1.0, 3)
@@ -176,6 +177,7 @@ def test_align_images_does_what_its_steps_do_one_by_one(gain, offset):
     aligned, (fit,) = photometric.align_images(image[None], recorded[None])
 
     naive = photometric.fit_light(image, recorded)
+    assert photometric.fit_shading(photometric.block_means(image), photometric.block_means(recorded), naive) is None
     moved = photometric.apply_light(image, naive)
     applied = naive.trustworthy and np.abs(moved.astype(np.int16) - image).mean() >= photometric.MIN_CHANGE
     expected = moved if applied else image
@@ -187,6 +189,55 @@ def test_align_images_does_what_its_steps_do_one_by_one(gain, offset):
     assert np.array_equal(fit.level, level) and np.array_equal(fit.inliers, naive.inliers)
     assert (fit.level_shift is not None) == (offset != 0)
     assert np.array_equal(aligned[0], expected)
+
+
+def test_apply_light_with_a_plane_against_a_loop():
+    """With ``shading`` each pixel gets the log gain of its place: ``255 exp(a + b log(x / 255) + p v + q u)``,
+    x floored at 0.5, rounded and clipped; v, u the pixel centre's place from -1 to 1. A flat plane is no plane."""
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (8, 6, 3), dtype=np.uint8)
+    fit = photometric.LightFit(np.array([0.05, -0.1, 0.0]), np.array([1.1, 0.9, 1.0]), np.zeros(3), 0.0,
+                               shading=np.array([[0.05, -0.02], [0.0, 0.1], [-0.08, 0.03]]))
+    out = photometric.apply_light(image, fit)
+    for r in range(8):
+        for col in range(6):
+            v, u = (r + 0.5) / 8 * 2 - 1, (col + 0.5) / 6 * 2 - 1
+            for c in range(3):
+                x = max(float(image[r, col, c]), 0.5) / 255.0
+                value = 255.0 * np.exp(fit.log_gain[c] + fit.exponent[c] * np.log(x) + fit.shading[c, 0] * v
+                                       + fit.shading[c, 1] * u)
+                assert out[r, col, c] == np.clip(np.rint(value), 0, 255)
+    assert np.array_equal(photometric.apply_light(image, replace(fit, shading=np.zeros((3, 2)))),
+                          photometric.apply_light(image, replace(fit, shading=None)))
+
+
+def shaded(image: np.ndarray, slopes) -> np.ndarray:
+    """image (H, W, 3) uint8 under a light whose gain per channel is ``1 + p v + q u`` (slopes (3, 2)), rounded."""
+    v, u = photometric.centred_coordinates(image.shape[:2])
+    gain = 1.0 + np.stack([p * v[:, None] + q * u[None, :] for p, q in slopes], axis=-1)
+    return np.clip(np.rint(image * gain), 0, 255).astype(np.uint8)
+
+
+def test_a_plane_of_light_is_fitted_on_the_rim_and_a_uniform_light_gets_none():
+    """A light 5 % brighter on one side than at the centre and 5 % dimmer on the other, in another direction per
+    channel, is found (slopes within 0.01 of the log gain's) where a press covers the middle of the gel, which
+    the plane is not fitted on; the image aligned is within a grey level of its no-contact image where not pressed.
+    A uniform drift, and no drift, get no plane."""
+    background = noisy(colourful_background(), 1.0, 3)
+    slopes = np.array([[0.05, 0.0], [0.0, -0.05], [0.035, 0.035]])
+    image = noisy(shaded(background, slopes), 1.0, 4)
+    image[80:240, 60:180] = image[80:240, 60:180] // 2 + 60  # a press's colours over the middle
+    aligned, (fit,) = photometric.align_images(image[None], background[None])
+    assert fit.shading is not None and fit.applied
+    assert np.abs(fit.shading + slopes).max() < 0.01  # the image -> no-contact mapping undoes the ramp
+    assert fit.to_dict()["shading"] == np.round(fit.shading, 4).tolist()
+    untouched = np.ones((H, W), dtype=bool)
+    untouched[76:244, 56:184] = False
+    assert np.abs(aligned[0].astype(float) - background)[untouched].mean() < 1.0
+    assert np.abs(image.astype(float) - background)[untouched].mean() > 2.5
+    for changed in (np.clip(background * 1.08, 0, 255).astype(np.uint8), background):
+        _, (flat,) = photometric.align_images(noisy(changed, 1.0, 6)[None], background[None])
+        assert flat.shading is None and flat.to_dict()["shading"] is None
 
 
 # --- the fit -------------------------------------------------------------------------------------------
@@ -365,6 +416,32 @@ def test_an_image_a_grey_level_off_the_renderers_level_is_shifted_onto_it(render
     assert iou(read.mask, reference.mask) > 0.99 > 0.98 > iou(as_given.mask, reference.mask)
     assert np.linalg.norm(read.point - reference.point) < 3e-5 < 5e-5 < np.linalg.norm(as_given.point - reference.point)
     assert fit.to_dict()["level_shift"] == np.round(fit.level_shift, 2).tolist()
+
+
+@pytest.mark.parametrize("name", PRESSES)
+@pytest.mark.slow
+def test_a_rendered_press_under_uneven_light_reads_its_own_contact(renderer, name):
+    """A rendered press whose light is 5 % brighter at one edge than at the centre and 5 % dimmer at the other (in
+    another direction per channel, as when each of a DIGIT's LEDs drifts its own way), read against the no-contact
+    image of before: aligned with the plane of the light, its mask is the one of the press under its own light
+    (IoU over 0.9; as given under 0.5: the brighter side reads as contact) and its contact point within 1 mm of
+    that press's (the box's face, a broad flat press, moves most); the same press under its own light gets no
+    plane."""
+    shape, point, normal, depth = PRESSES[name]
+    model = small_patch_model()
+    result = press(renderer, contact_patch.shape_to_mesh, shape, point, normal, depth=depth, tilt_axis=0.5,
+                   tilt=0.2, offset=(0.002, -0.001), seed=11)[0]
+    recorded = renderer.no_contact(seed=12)
+    reference = contact_patch.image_to_patch(result.image, recorded, model)
+    _, (own,) = photometric.align_images(result.image[None], recorded[None])
+    assert own.shading is None
+    uneven = shaded(result.image, np.array([[0.05, 0.0], [-0.035, 0.035], [0.0, -0.05]]))
+    aligned, (fit,) = photometric.align_images(uneven[None], recorded[None])
+    assert fit.shading is not None and fit.applied
+    read = contact_patch.image_to_patch(aligned[0], recorded, model)
+    as_given = contact_patch.image_to_patch(uneven, recorded, model)
+    assert iou(read.mask, reference.mask) > 0.9 > 0.5 > iou(as_given.mask, reference.mask)
+    assert np.linalg.norm(read.point - reference.point) < 0.001
 
 
 @pytest.mark.parametrize("gain, gamma", [([0.92, 1.06, 0.97], [1.12, 0.88, 1.05]), ([1.08, 0.93, 1.04], [0.86, 1.15, 0.9])])

@@ -36,6 +36,15 @@ measured on the blocks that follow the fit (``untouched_level``); where it is ``
 of the renderer's own images (``UNTOUCHED_LEVEL``), on which the databases, the autoencoder and the mask's thresholds
 were made, the image is shifted onto it (``add_levels``: fractions of a grey level by ordered dithering).
 
+Light that changes across the gel (one of a DIGIT's LEDs, each on its own side, drifting more than the others) is
+not one gain per channel: after the fit, a plane of log gain per channel (``expected_c = 255 * exp(a_c + p_c v +
+q_c u) * (recorded_c / 255) ** b_c``, v and u the place in the image from -1 to 1) is fitted on the blocks of the
+image's rim only (``fit_shading``): a press reaches the rim last, and a plane fitted over the whole image also takes
+up a large press's own shading, which a change of light cannot be told from there. It is kept where it is at least
+``SHADING_MIN`` steep and makes many more of the image's blocks follow the light than the fit without it
+(``SHADING_GAIN``: over a no-contact image whose colours change across the gel, as a unit's do, the exponent and a
+plane can trade one for the other), and applied per pixel (``apply_light``).
+
 A no-contact image of another unit than the image's is told by how little of the image follows the fit:
 its LEDs light the gel in another pattern, which no change of light per channel maps onto this unit's, so
 only scattered blocks agree with it by chance, where an image of the same unit agrees wherever the gel is
@@ -79,6 +88,21 @@ MIN_CHANGE = 1.75
 # about 1.7 from each.
 MIN_AGREEMENT = 0.10
 RIM = 3  # blocks: the image's rim, where a press reaches last (12 pixels)
+# Log gain from the image centre to the middle of an edge: a plane of the light over the gel (fit_shading) at least
+# this steep in some channel and direction may be applied. A ramp of +-5 % across the gel gives about 0.05; rendered
+# presses over a synthetic no-contact image whose colours change across it, up to 0.024 with no ramp at all. Set on
+# validation, offaxis and variation under real_setup_check.py's shading condition, where 0.02 and 0.03 gave the same
+# estimates (docs/real_sensors.md).
+SHADING_MIN = 0.03
+# A plane is applied only where at least SHADING_GAIN times as many blocks follow it within SHADING_CLOSE (log value,
+# a grey level at 100) in every channel as follow the fit without it. Under a ramp of +-5 % the fit without it holds
+# a band through the centre (rendered presses: 2.0-2.5 times as many follow the plane); a plane traded for the
+# exponent (over a no-contact image whose colours change across the gel, under a uniform drift) holds 0.96-1.2 times
+# as many, with slopes of 0.05-0.06 (tests/test_photometric.py).
+SHADING_GAIN = 1.5
+SHADING_CLOSE = 0.01
+SHADING_PRIOR = 1e-3  # per block, the weight of p^2 and q^2 (a plane's slopes) beside the squared log residuals
+SHADING_ITERATIONS = 15  # reweighting rounds of fit_shading
 
 # Grey levels (R, G, B): where the gel is not touched, how far the renderer's images sit from their no-contact image,
 # as ``untouched_level`` measures it. The renderer adds its camera noise and truncates the sum (render.add_noise, as
@@ -111,7 +135,10 @@ class LightFit:
     (rows, cols) bool, the blocks (``BLOCK`` pixels a side) that follow it; level: (3,) grey levels, the
     untouched gel's level against the no-contact image after the fit (``untouched_level``; None where not
     measured); level_shift: (3,) grey levels added to the image after the fit to bring that level to
-    ``UNTOUCHED_LEVEL`` (``add_levels``), None where it was not shifted.
+    ``UNTOUCHED_LEVEL`` (``add_levels``), None where it was not shifted; shading: (3, 2) per channel the slopes
+    (p, q) of the log gain's plane across the image (along its rows' index v and columns' index u, each -1 to 1;
+    ``fit_shading``), None where the light is uniform (log_gain is then the same everywhere; with a plane, it is
+    the image centre's).
     """
 
     log_gain: np.ndarray
@@ -123,6 +150,7 @@ class LightFit:
     inliers: np.ndarray | None = field(default=None, repr=False)
     level: np.ndarray | None = None
     level_shift: np.ndarray | None = None
+    shading: np.ndarray | None = None
 
     @property
     def gain(self) -> np.ndarray:
@@ -168,7 +196,8 @@ class LightFit:
                 "residual": self.residual.round(2).tolist(), "outliers": round(float(self.outliers), 4),
                 "applied": self.applied, "another_unit": self.from_another_unit,
                 "level": None if self.level is None else np.round(self.level, 2).tolist(),
-                "level_shift": None if self.level_shift is None else np.round(self.level_shift, 2).tolist()}
+                "level_shift": None if self.level_shift is None else np.round(self.level_shift, 2).tolist(),
+                "shading": None if self.shading is None else np.round(self.shading, 4).tolist()}
 
 
 def _rgb(values: np.ndarray) -> str:
@@ -291,10 +320,15 @@ def border_weights(shape: tuple[int, int]) -> np.ndarray:
     lights up a blob; the gel's border is the last place it reaches, so there the untouched gel is most
     often seen (a flat face pressed into the gel shifts its middle's colours almost uniformly, which a
     count over all blocks could take for the light)."""
-    rows, cols = shape
-    v = (np.arange(rows) + 0.5) / rows * 2.0 - 1.0
-    u = (np.arange(cols) + 0.5) / cols * 2.0 - 1.0
+    v, u = centred_coordinates(shape)
     return BORDER_WEIGHT[0] + BORDER_WEIGHT[1] * (v[:, None] ** 2 + u[None, :] ** 2)
+
+
+def centred_coordinates(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) -> v (rows,), u (cols,): each row's and column's centre from -1 (first edge) to 1 (last);
+    of blocks and of the pixels they average alike (a block's centre is its pixels' centre)."""
+    rows, cols = shape
+    return (np.arange(rows) + 0.5) / rows * 2.0 - 1.0, (np.arange(cols) + 0.5) / cols * 2.0 - 1.0
 
 
 def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray, prior: float) -> tuple[float, float]:
@@ -355,12 +389,71 @@ def lookup_tables(fit: LightFit) -> np.ndarray:
 
 
 def apply_light(image: np.ndarray, fit: LightFit) -> np.ndarray:
-    """image (H, W, 3) uint8 -> the same under its no-contact image's light (``lookup_tables``)."""
-    tables = lookup_tables(fit)
+    """image (H, W, 3) uint8 -> the same under its no-contact image's light (``lookup_tables``; with a plane of
+    the light, ``fit.shading``, each pixel's log gain from its place, rounded as the tables round)."""
     out = np.empty_like(image)
+    if fit.shading is None:
+        tables = lookup_tables(fit)
+        for c in range(3):
+            out[..., c] = tables[c][image[..., c]]
+        return out
+    v, u = centred_coordinates(image.shape[:2])
+    log_recorded = np.log(np.maximum(np.arange(256, dtype=np.float64), 0.5) / 255.0)
     for c in range(3):
-        out[..., c] = tables[c][image[..., c]]
+        p, q = fit.shading[c]
+        log_values = (fit.log_gain[c] + fit.exponent[c] * log_recorded)[image[..., c]] + (p * v[:, None] + q * u[None, :])
+        out[..., c] = np.clip(np.rint(255.0 * np.exp(log_values)), 0, 255).astype(np.uint8)
     return out
+
+
+def fit_shading(rec: np.ndarray, exp_: np.ndarray, fit: LightFit) -> LightFit | None:
+    """``fit`` with a plane of log gain per channel across the image (module docstring), from the ``block_means``
+    (rows, cols, 3) of the image (rec) and of its no-contact image (exp_) -> the fit with ``shading``, its lines
+    refitted beside the plane and its ``inliers`` and ``outliers`` those of the plane over the whole image; None
+    where the plane is flatter than ``SHADING_MIN`` in every channel, fewer than 10 rim blocks follow it, or it does
+    not make ``SHADING_GAIN`` times as many blocks follow the light within ``SHADING_CLOSE`` as the fit without it.
+
+    Each channel ``y = a + b x + p v + q u`` (x, y the log values, v and u the block's place) from the fit's line
+    and no plane, refined by Tukey's biweight as ``refine_lines`` refines the lines (the same scale; a block counted
+    where near in all channels; the same prior on b, ``SHADING_PRIOR`` on p and q) on the rim's usable blocks
+    (``RIM``, ``VALID``), ``SHADING_ITERATIONS`` rounds."""
+    shape = rec.shape[:2]
+    x = np.log(np.maximum(rec.reshape(-1, 3), 0.5) / 255.0)
+    y = np.log(np.maximum(exp_.reshape(-1, 3), 0.5) / 255.0)
+    usable = np.all((rec > VALID[0]) & (rec < VALID[1]) & (exp_ > VALID[0]) & (exp_ < VALID[1]), axis=-1).ravel()
+    rim = np.ones(shape, dtype=bool)
+    rim[RIM:-RIM, RIM:-RIM] = False
+    v, u = (a.ravel() for a in np.meshgrid(*centred_coordinates(shape), indexing="ij"))
+    on_rim = usable & rim.ravel()
+    designs = [np.stack([np.ones(np.count_nonzero(on_rim)), x[on_rim, c], v[on_rim], u[on_rim]], axis=1) for c in range(3)]
+    params = np.stack([fit.log_gain, fit.exponent, np.zeros(3), np.zeros(3)], axis=1)  # (3, 4): a, b, p, q
+    prior_mean = np.array([0.0, 1.0, 0.0, 0.0])
+    scale = TOLERANCE / 2.0
+    for _ in range(SHADING_ITERATIONS):
+        z = np.stack([y[on_rim, c] - designs[c] @ params[c] for c in range(3)], axis=1) / (TUKEY_C * scale)
+        near = np.all(np.abs(z) < 1.0, axis=1)
+        if np.count_nonzero(near) < 10:
+            return None
+        w = np.where(near[:, None], (1.0 - z**2) ** 2, 0.0)
+        for c in range(3):
+            n = np.count_nonzero(w[:, c])
+            prior = np.diag([0.0, PRIOR_WEIGHT * n, SHADING_PRIOR * n, SHADING_PRIOR * n])
+            weighted = designs[c] * w[:, c:c + 1]
+            params[c] = np.linalg.solve(designs[c].T @ weighted + prior, weighted.T @ y[on_rim, c] + prior @ prior_mean)
+    if np.abs(params[:, 2:]).max() < SHADING_MIN:
+        return None
+    residuals = y - params[:, 0] - params[:, 1] * x - params[:, 2] * v[:, None] - params[:, 3] * u[:, None]
+    inliers = usable & np.all(np.abs(residuals) < TUKEY_C * scale, axis=1)
+    # Accepted only where the plane makes many more of the image's blocks follow the light closely than the fit
+    # without it: a plane traded for the exponent (over a no-contact image whose colours change across the gel)
+    # holds about as many as that fit; a real change of light across the gel holds far more.
+    flat = y - fit.log_gain - fit.exponent * x
+    follow_plane = np.count_nonzero(usable & np.all(np.abs(residuals) < SHADING_CLOSE, axis=1))
+    follow_flat = np.count_nonzero(usable & np.all(np.abs(flat) < SHADING_CLOSE, axis=1))
+    if follow_plane < SHADING_GAIN * follow_flat:
+        return None
+    return replace(fit, log_gain=params[:, 0].copy(), exponent=params[:, 1].copy(), shading=params[:, 2:].copy(),
+                   inliers=inliers.reshape(shape), outliers=float(1.0 - inliers.mean()))
 
 
 def untouched_level(image: np.ndarray, background: np.ndarray, inliers: np.ndarray) -> np.ndarray | None:
@@ -423,13 +516,16 @@ def align_images(images: np.ndarray, backgrounds: np.ndarray) -> tuple[np.ndarra
     is (``applied`` False): an image whose fit is not trustworthy, and one the fit would change by less
     than ``MIN_CHANGE`` grey levels on average: on images under their no-contact image's own light the
     fit, which a large press biases, moves them by about 1 grey level, and reading them so cost accuracy
-    (docs/real_sensors.md). Then each is shifted onto the renderer's untouched level where it is far off it
+    (docs/real_sensors.md). Light that changes across the gel is fitted as a plane per channel where it does
+    (``fit_shading``). Then each is shifted onto the renderer's untouched level where it is far off it
     (``shift_to_untouched_level``)."""
     out, fits = [], []
     for image, background in zip(images, backgrounds):
         # Each image's and no-contact image's block means are made once, for the fit and the untouched level.
         image_blocks, background_blocks = block_means(image), block_means(background)
         fit = fit_light_on_blocks(image_blocks, background_blocks)
+        if fit.trustworthy and not fit.from_another_unit:
+            fit = fit_shading(image_blocks, background_blocks, fit) or fit
         aligned = apply_light(image, fit)
         if not fit.trustworthy or np.abs(aligned.astype(np.int16) - image).mean() < MIN_CHANGE:
             aligned, fit = image, replace(fit, applied=False)
