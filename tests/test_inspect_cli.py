@@ -136,6 +136,26 @@ def test_drifted_light_is_aligned_before_the_contact_is_read(capsys, scene, arti
     assert shift < 0.5  # mm
 
 
+def test_light_that_changes_across_the_gel_is_said_and_aligned(capsys, scene, artifacts):
+    """One sensor's image brighter towards its last rows and dimmer towards its first, by 5 % at the edges: the
+    JSON gives the plane (its row slope undoing the ramp), the text says the light changes across the gel, and the
+    contact point moves by less than 0.5 mm. (Sensor 1: the box's face pressed into sensors 0 and 2 covers most of
+    their rim, where the plane is fitted, and there the plane is not found.)"""
+    _, clean = run_json(capsys, scene, artifacts)
+    image = read_tactile_image(scene / "Image_heatmap_1.png").astype(np.float64)
+    rows = (np.arange(image.shape[0]) + 0.5) / image.shape[0] * 2.0 - 1.0
+    write_tactile_image(scene / "Image_heatmap_1.png",
+                        np.clip(image * (1.0 + 0.05 * rows)[:, None, None], 0, 255).round().astype(np.uint8))
+    _, uneven = run_json(capsys, scene, artifacts)
+    light = uneven["sensors"][1]["light"]
+    assert light["applied"] and clean["sensors"][1]["light"]["shading"] is None
+    assert all(-0.06 < row < -0.035 for row, _ in light["shading"])  # the image -> no-contact mapping's slope
+    shift = np.linalg.norm(np.subtract(uneven["sensors"][1]["point_mm"], clean["sensors"][1]["point_mm"]))
+    assert shift < 0.5  # mm
+    _, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts))
+    assert "the light changes across the gel" in out.split("sensor 1:")[1].split("sensor 2:")[0]
+
+
 @pytest.mark.slow
 def test_own_backgrounds_are_taken_as_estimate_takes_them(capsys, scene, artifacts, data_dir):
     background = data_dir / "digit" / "caddeo2023" / "background.png"

@@ -179,6 +179,9 @@ def sensor_lines(i: int, reading: SensorReading) -> list[str]:
         gain = "/".join(f"{v:.2f}" for v in fit.gain)
         gamma = "/".join(f"{v:.2f}" for v in fit.gamma)
         state = "aligned" if fit.applied else "left as given"
+        if fit.shading is not None:
+            state = (f"the light changes across the gel (a plane of gain per channel, up to {_steepest(fit.shading)} % "
+                     f"from its centre to an edge); {state}")
         if fit.level_shift is not None:
             state += (f", then shifted by {'/'.join(f'{v:+.2f}' for v in fit.level_shift)} grey levels onto the level at "
                       "which the renderer's untouched gel sits against its no-contact image")
@@ -187,6 +190,11 @@ def sensor_lines(i: int, reading: SensorReading) -> list[str]:
     lines += [f"  light warning: {p}" for p in reading.light_problems]
     lines += [f"  problem: {p}" for p in reading.problems]
     return lines
+
+
+def _steepest(shading) -> str:
+    """A plane's steepest slope (log gain from the image centre to the middle of an edge) as a per cent change of gain."""
+    return f"{100 * (np.exp(float(np.abs(shading).max())) - 1):.0f}"
 
 
 def reading_figure(reading: SceneReading, title: str):
