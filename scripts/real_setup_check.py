@@ -116,9 +116,7 @@ def shade_image(image: np.ndarray, slopes: np.ndarray, angles: np.ndarray) -> np
     t the pixel's position along the direction ``angles[c]`` (rad, in the image plane), scaled so that t = 1 where
     the direction meets the image's edge from its centre (and -1 opposite); slopes, angles (3,). Rounded to 8 bits.
     Kept with this check rather than in ``tactile6d.sim.perturb`` while no generated set is made with it."""
-    h, w = image.shape[:2]
-    v = (np.arange(h) + 0.5) / h * 2.0 - 1.0
-    u = (np.arange(w) + 0.5) / w * 2.0 - 1.0
+    v, u = photometric.centred_coordinates(image.shape[:2])
     out = np.empty(image.shape, dtype=np.float64)
     for c in range(3):
         d = np.array([np.cos(angles[c]), np.sin(angles[c])])  # (row, col) direction
