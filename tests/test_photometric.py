@@ -45,16 +45,20 @@ def test_block_means_match_a_loop():
             assert np.allclose(out[i, j], image[4 * i:4 * i + 4, 4 * j:4 * j + 4].reshape(-1, 3).mean(axis=0))
 
 
-def test_weighted_line_is_the_least_squares_solution_with_its_prior():
+def test_weighted_lines_are_each_rows_least_squares_solution_with_its_prior():
     rng = np.random.default_rng(1)
-    x, w = rng.normal(size=50), rng.uniform(0.0, 1.0, 50)
-    y = 0.3 + 1.4 * x + 0.1 * rng.normal(size=50)
-    prior = 2.0
-    # Rows sqrt(w) [1, x] -> sqrt(w) y, plus sqrt(prior) [0, 1] -> sqrt(prior) * 1.
-    A = np.vstack([np.sqrt(w)[:, None] * np.stack([np.ones(50), x], axis=1), [0.0, np.sqrt(prior)]])
-    b = np.concatenate([np.sqrt(w) * y, [np.sqrt(prior)]])
-    expected = np.linalg.lstsq(A, b, rcond=None)[0]
-    assert np.allclose(photometric._weighted_line(x, y, w, prior), expected)
+    x, w = rng.normal(size=(3, 50)), rng.uniform(0.0, 1.0, (3, 50))
+    y = 0.3 + 1.4 * x + 0.1 * rng.normal(size=(3, 50))
+    prior = np.array([2.0, 0.0, 50.0])
+    w[2, :48] = 0.0  # two points and the prior: still one answer
+    got = photometric._weighted_lines(x, y, w, prior)
+    for c in range(3):
+        # Rows sqrt(w) [1, x] -> sqrt(w) y, plus sqrt(prior) [0, 1] -> sqrt(prior) * 1.
+        A = np.vstack([np.sqrt(w[c])[:, None] * np.stack([np.ones(50), x[c]], axis=1), [0.0, np.sqrt(prior[c])]])
+        b = np.concatenate([np.sqrt(w[c]) * y[c], [np.sqrt(prior[c])]])
+        assert np.allclose(got[c], np.linalg.lstsq(A, b, rcond=None)[0])
+    # No weight at all: no line to fit, the identity's (0, 1).
+    assert np.array_equal(photometric._weighted_lines(x, y, np.zeros((3, 50)), prior), np.tile([0.0, 1.0], (3, 1)))
 
 
 def test_mode_line_finds_the_tight_line_under_most_points_scattered_off_it():

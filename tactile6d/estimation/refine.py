@@ -290,7 +290,8 @@ def refine_poses_and_sensors(
     if has_patch:
         extra = np.asarray(patch_points, dtype=np.float64).reshape(-1, 3)
         extra_w = np.asarray(patch_weights, dtype=np.float64).reshape(-1) ** 2
-        owners = np.eye(n_sensors)[np.asarray(patch_owners, dtype=int).reshape(-1)]  # (M, L) one-hot
+        patch_owner = np.asarray(patch_owners, dtype=int).reshape(-1)  # (M,) each point's sensor
+        owners = np.eye(n_sensors)[patch_owner]  # (M, L) one-hot
     has_free = free_points is not None and len(free_points) > 0
     if has_free:
         free = np.asarray(free_points, dtype=np.float64).reshape(-1, 3)
@@ -307,16 +308,17 @@ def refine_poses_and_sensors(
         B = np.einsum("pl,pla,plb->plab", rho, J, J)  # each sensor's rows' normal equations (P, L, 6, 6)
         g = np.einsum("pl,pla,pl->pla", rho, J, r)
         if has_patch:
-            R_own = np.einsum("ml,plab->pmab", owners, R_seen)
-            t_own = np.einsum("ml,pla->pma", owners, seen[..., :3, 3])
+            R_own, t_own = R_seen[:, patch_owner], seen[..., :3, 3][:, patch_owner]  # each point's own sensor
             qp = np.einsum("pmba,pmb->pma", R_own, extra[None] - t_own)
             _, idx = surface.tree.query(qp.reshape(-1, 3))
             cp, mp = surface.points[idx].reshape(qp.shape), surface.normals[idx].reshape(qp.shape)
             rp = np.sum(mp * (qp - cp), axis=-1)
             Jp = np.concatenate([-mp, np.cross(mp, qp)], axis=-1)
             rhop = extra_w / (1.0 + (rp / _ROBUST_DISTANCE) ** 2)
-            B += np.einsum("pm,ml,pma,pmb->plab", rhop, owners, Jp, Jp)
-            g += np.einsum("pm,ml,pma,pm->pla", rhop, owners, Jp, rp)
+            # Each point's rows first, then summed onto its sensor's (one-hot owners): the same products and sums
+            # in the same order as one einsum over (p, m, l, a, b), three times faster.
+            B += np.einsum("ml,pmab->plab", owners, (rhop[..., None, None] * Jp[..., :, None]) * Jp[..., None, :])
+            g += np.einsum("ml,pma->pla", owners, (rhop[..., None] * Jp) * rp[..., None])
         if has_free:
             R_own = np.einsum("fl,plab->pfab", free_owned, R_seen)
             t_own = np.einsum("fl,pla->pfa", free_owned, seen[..., :3, 3])
