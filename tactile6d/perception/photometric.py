@@ -304,8 +304,8 @@ def refine_lines(x: np.ndarray, y: np.ndarray, lines: np.ndarray) -> tuple[np.nd
     one estimated from the residuals would grow with every contact block let in."""
     scale = TOLERANCE / 2.0
     lines = np.array(lines, dtype=np.float64)
-    # The channels side by side, each a contiguous row: every sum below is the one _weighted_line makes of a
-    # channel alone (the same pairwise summation), at a tenth of the calls.
+    # The channels side by side, each a contiguous row: each sum is the pairwise sum of one channel's row, the same
+    # bits as fitting the channels one by one, at a tenth of the calls.
     xc, yc = np.ascontiguousarray(x.T), np.ascontiguousarray(y.T)  # (C, n)
     for _ in range(ITERATIONS):
         u = (yc - lines[:, :1] - lines[:, 1:] * xc) / (TUKEY_C * scale)  # (C, n)
@@ -430,7 +430,7 @@ def fit_shading(rec: np.ndarray, exp_: np.ndarray, fit: LightFit) -> LightFit | 
     v, u = (a.ravel() for a in np.meshgrid(*centred_coordinates(shape), indexing="ij"))
     on_rim = usable & rim.ravel()
     # Channels side by side as contiguous (C, n) rows; the normal equations' sums of products of [1, x, v, u] and y,
-    # each made once, weighed anew each round.
+    # each product made once and weighed anew each round (elementwise sums, no BLAS: the same bits on every CPU).
     xr, yr = np.ascontiguousarray(x[on_rim].T), np.ascontiguousarray(y[on_rim].T)
     vr, ur = np.broadcast_to(v[on_rim], xr.shape), np.broadcast_to(u[on_rim], xr.shape)
     terms = [np.ones_like(xr), xr, vr, ur]
