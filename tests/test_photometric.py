@@ -36,13 +36,31 @@ def noisy(image, sigma, seed):
 # --- the pieces against naive references -------------------------------------------------------------
 
 
-def test_block_means_match_a_loop():
-    image = np.random.default_rng(0).integers(0, 256, (13, 10, 3)).astype(np.uint8)
+def _loop_block_means(image, block):
+    rows, cols = image.shape[0] // block, image.shape[1] // block
+    out = np.empty((rows, cols, image.shape[2]))
+    for i in range(rows):
+        for j in range(cols):
+            out[i, j] = image[block * i:block * i + block, block * j:block * j + block].reshape(-1, image.shape[2]).mean(axis=0)
+    return out
+
+
+@pytest.mark.parametrize("dtype, low, high, channels", [(np.uint8, 0, 256, 3), (np.int16, -255, 256, 3),
+                                                        (np.uint8, 0, 256, 1), (np.uint16, 0, 65536, 4)])
+def test_block_means_of_whole_numbers_are_a_loops_bits(dtype, low, high, channels):
+    # The fast path (OpenCV's area resampling) must give the plain mean's bits: the fits read them.
+    image = np.random.default_rng(0).integers(low, high, (13, 10, channels)).astype(dtype)
     out = photometric.block_means(image, 4)
-    assert out.shape == (3, 2, 3)
-    for i in range(3):
-        for j in range(2):
-            assert np.allclose(out[i, j], image[4 * i:4 * i + 4, 4 * j:4 * j + 4].reshape(-1, 3).mean(axis=0))
+    assert out.shape == (3, 2, channels) and out.dtype == np.float64
+    assert np.array_equal(out, _loop_block_means(image, 4))
+
+
+def test_block_means_of_other_inputs_match_a_loop():
+    rng = np.random.default_rng(1)
+    floats = rng.normal(100.0, 30.0, (13, 10, 3))
+    assert np.allclose(photometric.block_means(floats, 4), _loop_block_means(floats, 4))
+    whole = rng.integers(0, 256, (13, 10, 3)).astype(np.uint8)  # a block of 9 pixels: no exact fast path
+    assert np.allclose(photometric.block_means(whole, 3), _loop_block_means(whole, 3))
 
 
 def test_weighted_lines_are_each_rows_least_squares_solution_with_its_prior():

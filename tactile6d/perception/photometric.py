@@ -56,6 +56,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 BLOCK = 4  # pixels averaged per side before the fit
@@ -209,9 +210,32 @@ IDENTITY = LightFit(np.zeros(3), np.ones(3), np.zeros(3), 0.0)
 
 def block_means(image: np.ndarray, block: int = BLOCK) -> np.ndarray:
     """(H, W, C) -> (H // block, W // block, C) float64 means of block x block pixels (the remainder cut)."""
-    h, w = image.shape[0] // block * block, image.shape[1] // block * block
-    x = np.asarray(image[:h, :w], dtype=np.float64)
-    return x.reshape(h // block, block, w // block, block, -1).mean(axis=(1, 3))
+    image = np.asarray(image)
+    rows, cols = image.shape[0] // block, image.shape[1] // block
+    x = np.asarray(image[: rows * block, : cols * block], dtype=np.float64)
+    exact = image.dtype.kind in "ui" and image.dtype.itemsize <= 2 and block & (block - 1) == 0
+    if exact and rows and cols and x.ndim == 3 and x.shape[2] <= 4:
+        # The mean of a power of two of whole numbers under 2^16 is exact in float64 in any order of its sum, so
+        # OpenCV's area resampling (a sum, then times 1 / block^2) gives NumPy's bits, 15 times faster.
+        return cv2.resize(x, (cols, rows), interpolation=cv2.INTER_AREA).reshape(rows, cols, -1)
+    return x.reshape(rows, block, cols, block, -1).mean(axis=(1, 3))
+
+
+def _log_blocks(rec: np.ndarray, exp_: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``block_means`` (rows, cols, 3) of an image (rec) and of its no-contact image (exp_) -> their log values
+    x and y (n, 3), ``log(max(value, 0.5) / 255)``, and which blocks are usable in every channel (n,) bool
+    (``VALID`` in both)."""
+    x = np.log(np.maximum(rec.reshape(-1, 3), 0.5) / 255.0)
+    y = np.log(np.maximum(exp_.reshape(-1, 3), 0.5) / 255.0)
+    usable = np.all((rec > VALID[0]) & (rec < VALID[1]) & (exp_ > VALID[0]) & (exp_ < VALID[1]), axis=-1).ravel()
+    return x, y, usable
+
+
+def _rim_blocks(shape: tuple[int, int]) -> np.ndarray:
+    """(rows, cols) -> bool (rows, cols): the blocks within ``RIM`` of the image's edge."""
+    rim = np.ones(shape, dtype=bool)
+    rim[RIM:-RIM, RIM:-RIM] = False
+    return rim
 
 
 def line_candidates(x: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None,
@@ -359,9 +383,7 @@ def fit_light_on_blocks(rec: np.ndarray, exp_: np.ndarray) -> LightFit:
     them follow in every channel at once (``joint_lines``), refined on the blocks near it (``refine_lines``).
     Fewer than 10 usable blocks: no change (gain and gamma 1), every block counted outside the fit."""
     shape = rec.shape[:2]
-    x = np.log(np.maximum(rec.reshape(-1, 3), 0.5) / 255.0)
-    y = np.log(np.maximum(exp_.reshape(-1, 3), 0.5) / 255.0)
-    usable = np.all((rec > VALID[0]) & (rec < VALID[1]) & (exp_ > VALID[0]) & (exp_ < VALID[1]), axis=-1).ravel()
+    x, y, usable = _log_blocks(rec, exp_)
     search = np.zeros(shape, dtype=bool)
     search[::SEARCH_STRIDE, ::SEARCH_STRIDE] = True
     searched = usable & search.ravel()
@@ -378,8 +400,7 @@ def fit_light_on_blocks(rec: np.ndarray, exp_: np.ndarray) -> LightFit:
     spread = np.maximum(1.4826 * np.median(np.abs(r), axis=0), MIN_SCALE) if near.any() else np.zeros(3)
     residual = spread * np.median(exp_.reshape(-1, 3), axis=0)
     outlier = ~inliers.reshape(shape)
-    rim = np.ones(shape, dtype=bool)
-    rim[RIM:-RIM, RIM:-RIM] = False
+    rim = _rim_blocks(shape)
     return LightFit(lines[:, 0].copy(), lines[:, 1].copy(), residual, float(outlier.mean()),
                     rim_agreement=float(1.0 - outlier[rim].mean()), inliers=inliers.reshape(shape))
 
@@ -422,11 +443,8 @@ def fit_shading(rec: np.ndarray, exp_: np.ndarray, fit: LightFit) -> LightFit | 
     where near in all channels; the same prior on b, ``SHADING_PRIOR`` on p and q) on the rim's usable blocks
     (``RIM``, ``VALID``), ``SHADING_ITERATIONS`` rounds."""
     shape = rec.shape[:2]
-    x = np.log(np.maximum(rec.reshape(-1, 3), 0.5) / 255.0)
-    y = np.log(np.maximum(exp_.reshape(-1, 3), 0.5) / 255.0)
-    usable = np.all((rec > VALID[0]) & (rec < VALID[1]) & (exp_ > VALID[0]) & (exp_ < VALID[1]), axis=-1).ravel()
-    rim = np.ones(shape, dtype=bool)
-    rim[RIM:-RIM, RIM:-RIM] = False
+    x, y, usable = _log_blocks(rec, exp_)
+    rim = _rim_blocks(shape)
     v, u = (a.ravel() for a in np.meshgrid(*centred_coordinates(shape), indexing="ij"))
     on_rim = usable & rim.ravel()
     # Channels side by side as contiguous (C, n) rows; the normal equations' sums of products of [1, x, v, u] and y,
