@@ -2,6 +2,7 @@
 points and normals for off-centre, tilted sensors, render-and-compare re-ranking, and their storage in
 the run artifacts."""
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -88,6 +89,13 @@ def test_a_sensor_whose_image_shows_no_contact_does_not_touch_when_another_does(
     one = contacts.patches_to_contacts([none, none, fake_patch(p, n)], T)
     with pytest.warns(contacts.UntouchedSensorWarning, match="under-determined"):
         contacts.warn_if_untouched(one)
+    with pytest.warns(contacts.UntouchedSensorWarning, match="no contact in any sensor's image: the pose rests on "
+                                                             "the sensor poses alone"):
+        contacts.warn_if_untouched(contacts.patches_to_contacts([none] * 3, T))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        contacts.warn_if_untouched(contacts.sensors_to_landmark_contacts(T))  # landmarks: nothing to say
+        contacts.warn_if_untouched(contacts.patches_to_contacts([fake_patch(p, n)] * 3, T))
 
 
 def lifted_contacts(world, lifted: int, back: float) -> tuple[np.ndarray, contacts.Contacts]:

@@ -426,8 +426,12 @@ def test_one_background_per_sensor_from_files_or_the_scene_folder(capsys, artifa
     code, out, err = run(capsys, *common, "select.N=500", "select.align_light=false")
     assert code == 0, err
     np.testing.assert_array_equal(angles_of(out), by_files)
-    assert err == (f"note: {in_folder}: each sensor's image is read against its own no-contact image "
-                   "background_<i>.png (i = 0..2)\n")
+    note, warning = err.splitlines()
+    assert note == (f"note: {in_folder}: each sensor's image is read against its own no-contact image "
+                    "background_<i>.png (i = 0..2)")
+    # each unit's flat image is its no-contact image: no sensor shows contact, and that is said
+    assert warning.startswith(f"warning: {in_folder}: no contact in any sensor's image: the pose rests on the "
+                              "sensor poses alone")
     # --background wins over the folder's
     code, out, err = run(capsys, *common, "--background", *one, "select.N=500", "select.align_light=false")
     assert code == 0 and np.ptp(angles_of(out)) > 1e-4
@@ -495,7 +499,37 @@ def test_overlapping_sensors_are_one_error_line(capsys, artifacts, scene, tmp_pa
     code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
                          *BASELINE)
     assert code == 2 and out == "" and err.count("\n") == 1
-    assert "sensors 0 and 2 overlap" in err
+    assert err.startswith(f"error: {folder}: sensors 0 and 2 overlap")  # the scene named, as in a batch
+
+
+def test_sensor_poses_in_millimetres_are_one_error_line_that_says_so(capsys, artifacts, scene, tmp_path):
+    folder = copy_scene(scene, tmp_path / "mm")
+    T = g.text_to_poses((folder / "poses_sensors.txt").read_text())
+    T[:, :3, 3] *= 1000.0
+    (folder / "poses_sensors.txt").write_text(g.poses_to_text(T))
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
+                         *BASELINE)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err.startswith(f"error: {folder}: sensors 0 and 1 both touch, but their contacts are ")
+    assert "these look like millimetres: divide the translations by 1000" in err
+
+
+@pytest.mark.slow
+def test_a_failed_scene_is_a_json_line_too(capsys, artifacts, scene, tmp_path):
+    """With --json every scene gives one line on stdout, in order: its result or its error."""
+    root = tmp_path / "triplets"
+    first = copy_scene(scene, root / "prim_box" / "triplet_1")
+    broken = copy_scene(scene, root / "prim_box" / "triplet_2")
+    (broken / "Image_heatmap_1.png").unlink()
+    last = copy_scene(scene, root / "prim_box" / "triplet_3")
+    code, out, err = run(capsys, "--object", "prim_box", "--scenes-root", str(root), "--artifacts", str(artifacts),
+                         "--json", *BASELINE)
+    assert code == 1
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert [line["scene"] for line in lines] == [str(first), str(broken), str(last)]
+    assert "best" in lines[0] and "best" in lines[2] and set(lines[1]) == {"scene", "error"}
+    assert "Image_heatmap_1.png missing" in lines[1]["error"]
+    assert err.splitlines()[-1] == "error: 1 of 3 scenes failed"
 
 
 @pytest.mark.slow
@@ -525,3 +559,18 @@ def test_no_contact_images_estimated_from_the_scenes(capsys, artifacts, scene, t
     code, out, err = run(capsys, *common, "--scene", *folders[:3], "select.N=500")
     assert code == 2 and out == "" and err.count("\n") == 1
     assert "--background from-scenes needs at least 5 scenes" in err
+
+
+def test_a_best_pose_pressed_into_a_sensor_is_a_warning_line(capsys, artifacts, scene, monkeypatch):
+    """The estimator checks its best pose's penetration (inputs.warn_if_pressed_in) and the CLI prints the warning;
+    forced here by a threshold below zero, since the box's true pose presses into no sensor."""
+    from tactile6d.perception import inputs
+
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         *BASELINE)
+    assert code == 0 and err == ""
+    monkeypatch.setattr(inputs, "PENETRATION_WARNING", -1.0)
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         *BASELINE)
+    assert code == 0 and err.startswith(f"warning: {scene}: the best pose presses ")
+    assert "T_world_sensor (the sensor's frame in the world, not its inverse)" in err

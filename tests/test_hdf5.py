@@ -29,6 +29,21 @@ def test_round_trip_keeps_data_stamp_and_config(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["s.h5"]  # no temporary file left
 
 
+def test_written_files_get_the_mode_open_would_give_them_not_a_temporary_files(tmp_path):
+    """The atomic writers' temporary files are private (0o600); what they become is readable as any new file."""
+    from tactile6d.data.hdf5 import write_json, write_text
+
+    umask = os.umask(0o022)
+    os.umask(umask)
+    expected = 0o666 & ~umask
+    for path in (write_artifact(tmp_path / "s.h5", "surface", surface_data()), write_text(tmp_path / "t.txt", "x\n"),
+                 write_json(tmp_path / "m.json", {"a": 1})):
+        assert path.stat().st_mode & 0o777 == expected, path
+    opened = tmp_path / "opened.txt"
+    opened.write_text("x")
+    assert opened.stat().st_mode & 0o777 == expected
+
+
 def test_missing_artifact_names_the_stage(tmp_path):
     with pytest.raises(ArtifactError, match=r"missing.*sample_surface.*dvc repro sample_surface"):
         read_artifact(tmp_path / "nope.h5", "surface")

@@ -71,6 +71,38 @@ def test_grey_and_bgr_images_are_named(default_background):
         inputs.check_images_against_backgrounds(bgr, backgrounds)
 
 
+def test_the_grey_image_error_names_a_reader_that_exists(default_background):
+    from tactile6d.data import hdf5
+
+    grey = np.repeat(default_background.mean(axis=-1, keepdims=True).astype(np.uint8), 3, axis=-1)
+    for check in (lambda: inputs.check_backgrounds(grey),
+                  lambda: inputs.check_images_against_backgrounds(grey[None], default_background[None])):
+        with pytest.raises(InputError, match=r"read it in colour \(tactile6d\.data\.hdf5\.read_tactile_image") as info:
+            check()
+        assert "tactile6d.io" not in str(info.value)
+    assert callable(hdf5.read_tactile_image)
+
+
+def test_images_of_another_dtype_are_refused_with_how_to_convert_them(default_background):
+    as_float = default_background.astype(np.float32) / 255
+    with pytest.raises(InputError, match=r"image 0 has dtype float32, tactile images must be uint8 \(0-255\) .*"
+                                         r"\(image \* 255\)\.round\(\)\.astype\(np\.uint8\)"):
+        inputs.check_images([as_float], 1)
+    with pytest.raises(InputError, match=r"image 1 has dtype uint16, .*\(image >> 8\)\.astype\(np\.uint8\)"):
+        inputs.check_images([default_background, default_background.astype(np.uint16) << 8], 2)
+    with pytest.raises(InputError, match=r"background has dtype float64, .*\(image \* 255\)"):
+        inputs.check_backgrounds(default_background / 255.0)
+    with pytest.raises(InputError, match=r"image 0 has dtype int64, tactile images must be uint8 \(0-255\) as the "
+                                         r"camera gives them$"):
+        inputs.check_images([default_background.astype(np.int64)], 1)
+
+
+def test_one_sensors_image_may_be_given_alone_as_its_pose_may(default_background):
+    np.testing.assert_array_equal(inputs.check_images(default_background, 1), default_background[None])
+    with pytest.raises(InputError, match=r"tactile images must be \(L, 320, 240, 3\), got shape \(320, 240, 3\)"):
+        inputs.check_images(default_background, 2)
+
+
 def test_a_raw_camera_frame_is_named_as_one_everywhere_an_image_is_read(tmp_path, default_background):
     """The camera's raw frame (240 rows x 320 columns) is ``np.rot90`` of what digit-interface returns: images,
     no-contact images, image files and the contact patch all name the turn; other sizes get the plain error."""
@@ -117,6 +149,17 @@ def test_a_rotation_axis_that_is_not_unit_length_names_the_line():
     text_to_poses("0 0 0 0 1.0009 0 1.0\n")  # within 1e-3: rounding in someone's file
     with pytest.raises(ValueError, match="line 1: zero rotation axis with a non-zero angle"):
         text_to_poses("0 0 0 0 0 0 1.0\n")
+
+
+def test_an_angle_in_degrees_is_named_and_any_angle_in_radians_passes():
+    with pytest.raises(ValueError, match=r"line 2: rotation angle 179.8 is more than a full turn \(2 pi\): the "
+                                         r"format's angle is in radians \(179.8 deg would be 3.1381\)"):
+        text_to_poses("0 0 0 1 0 0 0.5\n0 0 0 0 1 0 179.8\n")
+    with pytest.raises(ValueError, match="rotation angle -90 is more than a full turn"):
+        text_to_poses("0 0 0 0 0 1 -90\n")
+    turns = text_to_poses("0 0 0 0 0 1 6.2831853\n0 0 0 0 0 1 -6.2831853\n0 0 0 0 0 1 4.19\n")
+    np.testing.assert_allclose(turns[0], np.eye(4), atol=1e-6)  # a full turn, in radians, is accepted
+    np.testing.assert_allclose(turns[1], np.eye(4), atol=1e-6)
 
 
 def test_a_rounded_rotation_is_taken_for_the_nearest_rotation_and_a_wrong_one_refused():
@@ -245,3 +288,49 @@ def test_the_checks_are_cheap(default_background):
         inputs.check_images_against_backgrounds(images, backgrounds)
         inputs.check_bodies_apart(T)
     assert (time.perf_counter() - t0) / 20 < 0.02
+
+
+# --- sensors out of the object's reach, and a best pose that presses into a sensor ----------------------------
+
+
+def test_sensors_too_far_apart_for_the_object_are_named_with_the_units_hint():
+    T = sensor_poses_touching(np.array([[0.05, 0, 0], [-0.05, 0, 0], [0, 0.05, 0]]),
+                              np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0]]), [0.0, 0.0, 0.0])
+    touching = np.ones(3, dtype=bool)
+    inputs.check_sensors_within_reach(T, touching, object_extent=0.12, pose_tolerance=0.0045)  # a 10 cm object
+    in_mm = T.copy()
+    in_mm[:, :3, 3] *= 1000.0
+    with pytest.raises(InputError, match=r"sensors 0 and 1 both touch, but their contacts are 140 m apart and the "
+                                         r"object spans at most 0.12 m: .*these look like millimetres"):
+        inputs.check_sensors_within_reach(in_mm, touching, 0.12, 0.0045)
+    far = T.copy()
+    far[2, :3, 3] += [0.0, 0.5, 0.0]  # half a metre off: not a units mix-up
+    with pytest.raises(InputError, match=r"sensors 0 and 2 .* no pose can touch both; check the sensor poses"):
+        inputs.check_sensors_within_reach(far, touching, 0.12, 0.0045)
+    inputs.check_sensors_within_reach(far, np.array([True, True, False]), 0.12, 0.0045)  # a lifted finger
+    # The bound: the object's extent, both gels' reach, the tolerance and the margin, no tighter.
+    pair = T[:2].copy()
+    gap = float(np.linalg.norm(np.diff(contact_points_of(pair), axis=0)))
+    extent = gap - 2 * inputs.GEL_REACH - 0.0045 - inputs.REACH_MARGIN
+    inputs.check_sensors_within_reach(pair, touching[:2], extent + 1e-6, 0.0045)
+    with pytest.raises(InputError):
+        inputs.check_sensors_within_reach(pair, touching[:2], extent - 1e-6, 0.0045)
+
+
+def contact_points_of(T):
+    from tactile6d.core.sensor import contact_points
+
+    return contact_points(T)
+
+
+def test_a_best_pose_that_presses_deep_into_a_sensor_is_warned_about():
+    allowance = SensorSettings(1.5, 1.5).contact_sigma
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        inputs.warn_if_pressed_in(np.array([0.0, 0.002, np.nan]), allowance)
+        inputs.warn_if_pressed_in(np.array([allowance + inputs.PENETRATION_WARNING, 0.0, 0.0]), allowance)
+        inputs.warn_if_pressed_in(np.zeros(0), allowance)
+    with pytest.warns(inputs.PenetrationWarning, match=r"the best pose presses 9\.6 mm into sensor 2's body, 7\.9 mm "
+                                                       r"more than .* T_world_sensor \(the sensor's frame in the world, "
+                                                       r"not its inverse\)"):
+        inputs.warn_if_pressed_in(np.array([0.0057, 0.0053, 0.0096]), allowance)

@@ -170,8 +170,18 @@ def test_own_backgrounds_are_taken_as_estimate_takes_them(capsys, scene, artifac
 
 
 def test_missing_patch_calibration_names_the_stage_that_makes_it(capsys, scene, tmp_path):
+    (tmp_path / "empty").mkdir()
     code, _, err = run(capsys, "--scene", str(scene), "--artifacts", str(tmp_path / "empty"))
     assert code == 2 and "calibrate_patch" in err
+    code, _, err = run(capsys, "--scene", str(scene), "--artifacts", str(tmp_path / "nowhere"))
+    assert code == 2 and err.startswith(f"error: {tmp_path / 'nowhere'}: no such artifacts directory")
+
+
+def test_from_scenes_is_refused_where_one_scene_is_read(capsys, scene, artifacts):
+    code, _, err = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts), "--background", "from-scenes")
+    assert code == 2 and err.startswith("error: --background from-scenes estimates the no-contact images from the "
+                                        "images of several scenes, which `tactile6d estimate` reads in one call; "
+                                        "`tactile6d inspect` reads one scene")
 
 
 @pytest.mark.slow
@@ -201,3 +211,4 @@ def test_a_bgr_image_is_named_as_such_not_as_another_units(capsys, scene, artifa
     sensor = reading["sensors"][2]
     assert "image 2 looks like BGR" in sensor["problems"][0]
     assert not any("another DIGIT unit" in p for p in sensor["light_problems"])
+    assert not sensor["light"]["another_unit"]  # the JSON's fit says what the problems say

@@ -60,3 +60,23 @@ def test_a_missing_file_names_the_stage_that_makes_it(tmp_path):
         oa.load_database_angles(tmp_path, "mug")
     with pytest.raises(ArtifactError, match=r"dvc repro sample_distractors\b"):
         oa.load_surface_points(layout.distractors_dir(tmp_path), "prim_box")
+    with pytest.raises(ArtifactError, match=r"dvc repro prepare_own@duck\b"):
+        oa.load_mesh(layout.own_dir(tmp_path), "duck")
+
+
+def test_a_misspelt_object_gets_the_name_it_is_close_to(tmp_path):
+    _write_object(tmp_path, "004_sugar_box")
+    _write_object(tmp_path, "036_wood_block")
+    with pytest.raises(ArtifactError, match=r"objects/004_sugarbox.h5: missing \(did you mean '004_sugar_box'\? "
+                                            r".*objects has 2: 004_sugar_box, 036_wood_block\); make it with "
+                                            r"`dvc repro prepare_object@004_sugarbox`"):
+        oa.load_mesh(tmp_path, "004_sugarbox")
+    with pytest.raises(ArtifactError, match=r"objects/mug.h5: missing; make it"):  # nothing close: no guess
+        oa.load_mesh(tmp_path, "mug")
+
+
+def test_an_artifacts_directory_that_does_not_exist_is_named(tmp_path):
+    for folder in (tmp_path / "nowhere", layout.distractors_dir(tmp_path / "nowhere")):
+        with pytest.raises(ArtifactError, match=r"nowhere: no such artifacts directory; make the artifacts with "
+                                                r"`make reproduce`"):
+            oa.load_surface_points(folder, "004_sugar_box")

@@ -86,3 +86,27 @@ def test_one_no_contact_image_and_one_fit_per_image(frame):
     images, no_contact, model = frame
     with PatchReader(1) as reader, pytest.raises(ValueError, match="3 images, 2 no-contact images"):
         reader.submit(images, [no_contact] * 2, [None] * 3, model)
+
+
+@pytest.mark.slow
+def test_a_script_without_a_main_guard_is_an_error_not_a_hang(tmp_path):
+    """Each spawn worker imports the caller's script again; one whose top level starts the reader kills the
+    workers as they start. That is a RuntimeError naming the guard, raised before any image is queued."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = tmp_path / "no_guard.py"
+    script.write_text(textwrap.dedent("""
+        import numpy as np
+        from tactile6d.perception.patch_reader import PatchReader
+
+        image = np.zeros((320, 240, 3), np.uint8)
+        reader = PatchReader(2)
+        futures = [reader.submit(np.stack([image] * 3), [image] * 3, [None] * 3, None) for _ in range(8)]
+        PatchReader.results(futures[0])
+    """))
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0
+    assert "RuntimeError: the contact patches' worker processes died while starting" in done.stderr
+    assert 'if __name__ == "__main__":' in done.stderr

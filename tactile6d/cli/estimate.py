@@ -66,11 +66,11 @@ import numpy as np
 
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
-from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
+from tactile6d.core.errors import ConfigError, InputError, NoMatch, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
 from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir
 from tactile6d.perception import photometric
-from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+from tactile6d.perception.inputs import PenetrationWarning, UnderdeterminedPoseWarning
 
 if TYPE_CHECKING:
     from tactile6d.estimation.estimator import Estimate, Estimator
@@ -307,9 +307,12 @@ def estimate_scene(scene: Path, name: str, cache: EstimatorCache, suggest_touch:
     if note:
         write(note, sys.stderr)
     estimator, load_seconds = cache.get(name)
+    from tactile6d.perception.contacts import UntouchedSensorWarning  # OpenCV and trimesh: not for --help
+
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", UnderdeterminedPoseWarning)
-        warnings.simplefilter("always", photometric.LightWarning)
+        # What an estimate may warn about its scene, printed for every scene it concerns, not once per batch.
+        for kind in (UnderdeterminedPoseWarning, photometric.LightWarning, UntouchedSensorWarning, PenetrationWarning):
+            warnings.simplefilter("always", kind)
         T = cache.sensor_poses(T_world_sensors)
         result = estimator.estimate(T, images, backgrounds)
     for line in warnings_to_lines(scene, caught):
@@ -379,6 +382,16 @@ def background_option(words: list[str] | None, scenes: list[Path]) -> np.ndarray
         background, note = backgrounds_from_scenes(scenes)
         write(note, sys.stderr)
         return background
+    return read_background_images(words) if words else None
+
+
+def one_scene_background_option(words: list[str] | None, command: str) -> np.ndarray | None:
+    """``--background``'s files for a command that reads one scene (``command``: its name); ``from-scenes``, which
+    needs the images of many, is an InputError that says where it works."""
+    if words == [FROM_SCENES]:
+        raise InputError(f"--background {FROM_SCENES} estimates the no-contact images from the images of several "
+                         f"scenes, which `tactile6d estimate` reads in one call; `tactile6d {command}` reads one "
+                         "scene: pass the sensors' no-contact image files")
     return read_background_images(words) if words else None
 
 
@@ -458,6 +471,8 @@ def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: Estimato
             except Tactile6dError as exc:
                 failed += 1
                 write(error_line(scene, exc), sys.stderr)
+                if args.json:  # one line per scene, so that a reader can line the results up with the scenes
+                    write(json.dumps({"scene": str(scene), "error": " ".join(str(exc).split())}), sys.stdout)
             else:
                 if args.json:
                     write(as_json(scene, name, result, cfg, load_seconds, args.suggest_touch, touch), sys.stdout)
@@ -488,7 +503,10 @@ def main(argv: list[str]) -> int:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).
         scene = scenes[0]
         name = object_of(scene, args.object, known)
-        result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch)
+        try:
+            result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch)
+        except (InputError, NoMatch) as exc:  # what is wrong with this scene: say which scene it is
+            raise type(exc)(error_line(scene, exc).removeprefix("error: ")) from exc
         write(as_json(scene, name, result, cfg, load_seconds, args.suggest_touch, touch) if args.json
               else as_text(scene, name, result, cfg, load_seconds, False, args.suggest_touch, touch), sys.stdout)
         return 0

@@ -28,13 +28,14 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from tactile6d.cli.estimate import (add_sensor_offsets_argument, is_override, read_sensor_offsets, scene_backgrounds,
-                                    split_overrides, use_solver_devices, warnings_to_lines)
+from tactile6d.cli.estimate import (add_sensor_offsets_argument, is_override, one_scene_background_option,
+                                    read_sensor_offsets, scene_backgrounds, split_overrides, use_solver_devices,
+                                    warnings_to_lines)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import pose_to_line
-from tactile6d.data.hdf5 import read_background_images, read_scene_dir
+from tactile6d.data.hdf5 import read_scene_dir
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 from tactile6d.perception.photometric import LightWarning
 
@@ -106,7 +107,7 @@ def main(argv: list[str]) -> int:
         from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
 
         T_world_sensors = apply_sensor_offsets(T_world_sensors, offsets)
-    background = read_background_images(args.background) if args.background else None
+    background = one_scene_background_option(args.background, "identify")
     backgrounds, note = scene_backgrounds(Path(args.scene), len(T_world_sensors), background is not None)
     if note:
         print(note, file=sys.stderr)
@@ -116,7 +117,7 @@ def main(argv: list[str]) -> int:
             warnings.simplefilter("always", UnderdeterminedPoseWarning)
             warnings.simplefilter("always", LightWarning)
             result = identifier.identify(T_world_sensors, images, backgrounds)
-    for line in warnings_to_lines(Path(args.scene), caught):
+    for line in dict.fromkeys(warnings_to_lines(Path(args.scene), caught)):  # each object's estimate may say it
         print(line, file=sys.stderr)
     print(json.dumps({"scene": str(args.scene), **result.to_dict()}) if args.json else as_text(result))
     return 0

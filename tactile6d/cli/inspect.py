@@ -37,12 +37,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tactile6d.cli.estimate import scene_backgrounds, split_overrides
+from tactile6d.cli.estimate import one_scene_background_option, scene_backgrounds, split_overrides
 from tactile6d.core import sensor
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import DataError, InputError
 from tactile6d.core.settings import SelectSettings, SensorSettings
-from tactile6d.data.hdf5 import read_background_images, read_scene_dir
+from tactile6d.data.hdf5 import read_scene_dir
 from tactile6d.perception import inputs, photometric
 
 if TYPE_CHECKING:
@@ -81,8 +81,12 @@ class SensorReading:
 
     def to_dict(self) -> dict:
         """Plain numbers for JSON: the contact (``contact_summary``), the light's fit and the problems."""
-        return {**contact_summary(self.patch), "light": None if self.light is None else self.light.to_dict(),
-                "light_problems": self.light_problems, "problems": self.problems}
+        light = None
+        if self.light is not None:
+            # As ``light_problems`` says it: a grey or BGR image is not also taken for another unit's.
+            light = {**self.light.to_dict(), "another_unit": self.unit is not None}
+        return {**contact_summary(self.patch), "light": light, "light_problems": self.light_problems,
+                "problems": self.problems}
 
 
 @dataclass(frozen=True)
@@ -266,7 +270,7 @@ def main(argv: list[str]) -> int:
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     scene = Path(args.scene)
     T_world_sensors, images = read_scene_dir(scene)
-    given = read_background_images(args.background) if args.background else None
+    given = one_scene_background_option(args.background, "inspect")
     backgrounds, source = scene_backgrounds_or_default(scene, len(T_world_sensors), given, cfg)
     from tactile6d.perception import encode
 

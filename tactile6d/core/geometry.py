@@ -324,6 +324,11 @@ def line_to_pose(line: str) -> np.ndarray:
         # Normalising it quietly would hide a file in another format (a rotation vector, degrees, a quaternion).
         raise ValueError(f"rotation axis of length {length:.6g}, not a unit vector (the format is 'x y z ax ay az "
                          f"angle' with a unit axis and the angle in radians), in pose line {line.strip()!r}")
+    if abs(values[6]) > 2.0 * np.pi + 1e-9:
+        # More than a full turn: no writer of this format puts one there, but an angle in degrees does.
+        raise ValueError(f"rotation angle {values[6]:.6g} is more than a full turn (2 pi): the format's angle is in "
+                         f"radians ({values[6]:.6g} deg would be {np.radians(values[6]):.6g}), in pose line "
+                         f"{line.strip()!r}")
     return make_pose(axis_angle_to_rotmat(axis, values[6]), values[:3])
 
 

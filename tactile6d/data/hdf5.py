@@ -37,6 +37,17 @@ def _remake_hint(schema: Schema) -> str:
     return f"it is made by stage '{schema.stage}' (run `dvc repro {schema.stage}`)"
 
 
+def _file_mode() -> int:
+    """The mode ``open`` gives a new file under this process's umask (0o644 under the usual 0o022)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+# What the atomic writers below give their files: a temporary file is made private (0o600), which the rename
+# would keep; the files are results that others in a lab read, as they would read those ``open`` makes.
+FILE_MODE = _file_mode()
+
 def write_artifact(
     path: str | os.PathLike,
     schema: str,
@@ -75,6 +86,7 @@ def write_artifact(
                 if compression and array.ndim >= 2 and array.size > 0:
                     kwargs = {"compression": compression, "chunks": (1,) + array.shape[1:] if array.ndim >= 3 else True}
                 f.create_dataset(name, data=array, **kwargs)
+        os.chmod(tmp_name, FILE_MODE)
         os.replace(tmp_name, path)
     except BaseException:
         # Nothing may remain under either name when the write did not complete.
@@ -164,6 +176,7 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)
+        os.chmod(tmp_name, FILE_MODE)
         os.replace(tmp_name, path)
     except BaseException:
         Path(tmp_name).unlink(missing_ok=True)

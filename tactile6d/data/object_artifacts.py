@@ -11,6 +11,7 @@ theirs to keep.
 
 from __future__ import annotations
 
+import difflib
 import functools
 from pathlib import Path
 
@@ -36,15 +37,33 @@ CACHED_FILES = 64
 
 def require(path: Path, stage: str, name: str | None = None) -> Path:
     """``path`` if it is a file; else an ArtifactError naming the DVC stage that makes it (for object
-    ``name`` when the stage runs per object; a distractor's stage makes the whole library)."""
+    ``name`` when the stage runs per object; a distractor's stage makes the whole library), the name of an
+    object with that artifact when ``name`` looks like a misspelling of it, or the artifacts directory when
+    there is none."""
     if not path.is_file():
-        if name is not None and path.parent.parent.name == layout.distractors_dir("").name:
+        library = path.parent.parent  # artifacts/, or its folder of distractors or of your own objects
+        kind = library.name if library.name in (layout.distractors_dir("").name, layout.own_dir("").name) else None
+        root = library.parent if kind else library
+        if not root.is_dir():
+            raise ArtifactError(f"{root}: no such artifacts directory; make the artifacts with `make reproduce` (or "
+                                "`dvc repro`), or pass the folder that holds them")
+        if name is not None and kind == layout.distractors_dir("").name:
             stage, name = DISTRACTOR_STAGES.get(stage, stage), None
-        elif name is not None and path.parent.parent.name == layout.own_dir("").name:
+        elif name is not None and kind == layout.own_dir("").name:
             stage = OWN_STAGES.get(stage, stage)
         target = stage if name is None else f"{stage}@{name}"
-        raise ArtifactError(f"{path}: missing; make it with `dvc repro {target}` (or `dvc repro` for all)")
+        raise ArtifactError(f"{path}: missing{_spelling_hint(path)}; make it with `dvc repro {target}` (or "
+                            "`dvc repro` for all)")
     return path
+
+
+def _spelling_hint(path: Path) -> str:
+    """`` (did you mean '<name>'? ...)`` when a file beside ``path`` has a name close to its name, else ``""``."""
+    others = sorted(p.stem for p in path.parent.glob(f"*{path.suffix}")) if path.parent.is_dir() else []
+    close = difflib.get_close_matches(path.stem, others, n=1, cutoff=0.8)
+    if not close:
+        return ""
+    return f" (did you mean {close[0]!r}? {path.parent} has {len(others)}: {', '.join(others)})"
 
 
 def read_object_artifact(path: Path, schema: str, stage: str, name: str) -> Artifact:

@@ -54,6 +54,8 @@ from tactile6d.perception.inputs import (
     check_images,
     check_images_against_backgrounds,
     check_sensor_poses,
+    check_sensors_within_reach,
+    warn_if_pressed_in,
     warn_if_underdetermined,
 )
 from tactile6d.sim.surface_sampling import sample_surface
@@ -209,6 +211,8 @@ class Estimator:
         self.confidence_model = confidence_model
         # The database points stand for the object in the distances between ranked poses.
         self.spread_points = confidence.spread_points(self.points)
+        # Their bounding box's diagonal bounds how far apart two sensors touching the object can be.
+        self.extent = float(np.linalg.norm(np.ptp(self.points, axis=0)))
 
     @classmethod
     def from_artifacts(
@@ -382,7 +386,9 @@ class Estimator:
         image's light (``align_light``; a ``photometric.LightWarning`` where that light cannot be trusted),
         and only then read. Sensors whose images show no contact while others' do are left out of the
         selection and the fit, and still checked in the ranking (``Contacts.touching``; a
-        ``contacts.UntouchedSensorWarning``).
+        ``contacts.UntouchedSensorWarning``). Touching sensors too far apart for the object to touch them all
+        are an InputError (``inputs.check_sensors_within_reach``: poses in millimetres, say), and a best pose
+        that presses deep into a sensor gets an ``inputs.PenetrationWarning`` (a pose given inverted, say).
         """
         start = time.perf_counter()
         T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)  # the one check
@@ -413,6 +419,7 @@ class Estimator:
     def _estimate_checked(self, T: np.ndarray, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
         """``estimate_encoded`` for checked sensor poses."""
         warn_if_untouched(contacts, stacklevel=4)
+        check_sensors_within_reach(T, contacts.touching, self.extent, self.settings.sensors.pair_distance_tolerance)
         start = time.perf_counter()
         seconds = {}
         t0 = time.perf_counter()
@@ -425,6 +432,8 @@ class Estimator:
 
         t0 = time.perf_counter()
         ranked = self._rank(T, hypotheses.poses, hypotheses.losses, contacts)
+        if len(ranked.poses) > 0:
+            warn_if_pressed_in(ranked.penetrations[0], self.settings.sensors.contact_sigma, stacklevel=4)
         probability = distinct = None
         if self.confidence_model is not None and len(ranked.poses) > 0:
             probability, distinct = confidence.assess(self.confidence_model, self.spread_points,

@@ -124,12 +124,21 @@ class Contacts:
 
 
 class UntouchedSensorWarning(UserWarning):
-    """Some sensors' images show no contact while others' do: the estimate rests on those that do."""
+    """Some sensors' images show no contact while others' do: the estimate rests on those that do. Or none
+    shows contact: the estimate rests on the sensor poses alone."""
 
 
 def warn_if_untouched(contacts: Contacts, stacklevel: int = 4) -> None:
     """An ``UntouchedSensorWarning`` naming the sensors the object does not touch (``Contacts.touching``),
-    when there are any. stacklevel: as ``warnings.warn``'s."""
+    when there are any, or saying that no image shows contact. stacklevel: as ``warnings.warn``'s."""
+    if contacts.observed and not contacts.from_patch.any():
+        # Every sensor then counts as touching (``touching``), so a selection that finds nothing would
+        # otherwise blame the database or the object.
+        warnings.warn("no contact in any sensor's image: the pose rests on the sensor poses alone, each sensor taken "
+                      "to touch at its gel's centre; check that the images were taken while the object touched the "
+                      "sensors and that each no-contact image is its own sensor's", UntouchedSensorWarning,
+                      stacklevel=stacklevel)
+        return
     touching = contacts.touching
     if touching.all():
         return

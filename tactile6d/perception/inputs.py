@@ -4,8 +4,10 @@ no-contact images (backgrounds).
 Each check returns the input as the array the steps take, or raises InputError naming the first
 problem, so that a robot's mistake is reported before any work is done. Beyond shapes and types, inputs
 that are plausibly wrong are refused too: a grey image, an image whose red and blue look swapped against
-its no-contact image (OpenCV's BGR order), sensors whose bodies overlap; one sensor only is accepted with
-a warning. They run once per estimate and cost well under a millisecond per sensor.
+its no-contact image (OpenCV's BGR order), sensors whose bodies overlap, touching sensors farther apart
+than the object is long (poses in millimetres); one sensor only is accepted with a warning. They run once per
+estimate and cost well under a millisecond per sensor. After the estimate, a best pose that presses deep into a
+sensor is warned about: no pose fits the sensor poses as given (an inverted pose, a wrong frame).
 """
 
 from __future__ import annotations
@@ -16,7 +18,16 @@ import numpy as np
 
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import is_rotation, matrix_to_nearest_rotation
-from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap
+from tactile6d.core.sensor import (
+    BOX_CENTER,
+    BOX_HALF_EXTENTS,
+    CONTACT_POINT,
+    GEL_CENTER,
+    GEL_HEIGHT,
+    GEL_WIDTH,
+    bodies_overlap,
+    contact_points,
+)
 from tactile6d.data.hdf5 import tactile_shape_problem
 
 
@@ -61,6 +72,8 @@ def check_images(images, n_sensors: int) -> np.ndarray:
         raise InputError("method 'ours' needs one tactile image per sensor, got none")
     if isinstance(images, np.ndarray) and images.ndim == 4:
         images = list(images)
+    elif isinstance(images, np.ndarray) and images.ndim == 3 and n_sensors == 1:
+        images = [images]  # one sensor's image, as one sensor's pose may be given as (4, 4)
     elif isinstance(images, np.ndarray):
         raise InputError(f"tactile images must be (L, 320, 240, 3), got shape {images.shape}")
     if len(images) != n_sensors:
@@ -71,8 +84,18 @@ def check_images(images, n_sensors: int) -> np.ndarray:
         if problem is not None:
             raise InputError(problem)
         if image.dtype != np.uint8:
-            raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8")
+            raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8 (0-255) as the "
+                             f"camera gives them{_uint8_hint(image.dtype)}")
     return np.stack([np.asarray(image) for image in images])
+
+
+def _uint8_hint(dtype: np.dtype) -> str:
+    """How to bring an image of ``dtype`` to uint8, for the error that refuses it."""
+    if np.issubdtype(dtype, np.floating):
+        return ": a float image in [0, 1] is (image * 255).round().astype(np.uint8)"
+    if dtype == np.uint16:
+        return ": a 16-bit image is (image >> 8).astype(np.uint8)"
+    return ""
 
 
 # --- no-contact images, one for all sensors or one per sensor -------------------------------------------
@@ -106,10 +129,11 @@ def _check_background(background: np.ndarray, name: str) -> None:
                          "one per sensor)")
     if background.dtype != np.uint8:
         raise InputError(f"{name} has dtype {background.dtype}, no-contact images must be uint8 like the "
-                         "tactile images")
+                         f"tactile images{_uint8_hint(background.dtype)}")
     if is_grey(background):
         raise InputError(f"{name} is grey (its three channels are equal everywhere), but a DIGIT image is "
-                         "RGB colour: read it with tactile6d.io.read_tactile_image")
+                         "RGB colour: read it in colour (tactile6d.data.hdf5.read_tactile_image, or cv2.imread without "
+                         "IMREAD_GRAYSCALE, then cv2.cvtColor(image, cv2.COLOR_BGR2RGB))")
 
 
 def backgrounds_per_sensor(backgrounds: np.ndarray, n_sensors: int) -> np.ndarray:
@@ -174,7 +198,8 @@ def image_problem(i: int, image: np.ndarray, background: np.ndarray) -> str | No
     or its channels swapped (BGR passed as RGB); None when neither."""
     if is_grey(image):
         return (f"image {i} is grey (its three channels are equal everywhere), but a DIGIT image is RGB colour: "
-                "read it with tactile6d.io.read_tactile_image")
+                "read it in colour (tactile6d.data.hdf5.read_tactile_image, or cv2.imread without IMREAD_GRAYSCALE, "
+                "then cv2.cvtColor(image, cv2.COLOR_BGR2RGB))")
     if looks_like_bgr(image, background):
         as_given, swapped = background_mismatch(image, background)
         return (f"image {i} looks like BGR: its red - blue differs from its no-contact image's by {as_given:.0f} "
@@ -236,3 +261,61 @@ def warn_if_underdetermined(n_sensors: int, stacklevel: int = 4) -> None:
         warnings.warn("one sensor only: the pose is under-determined (the rotation about the contact normal "
                       "and sliding along the surface are not observed)", UnderdeterminedPoseWarning,
                       stacklevel=stacklevel)
+
+
+# --- sensors that cannot all touch the object, and estimates that press into a sensor --------------------
+
+# How far from a sensor's landmark (``sensor.contact_points``) the object can touch its gel: the gel's apex
+# ahead of it and the gel's corners (m).
+GEL_REACH = float(np.linalg.norm([GEL_CENTER[0] - CONTACT_POINT[0], GEL_WIDTH / 2, GEL_HEIGHT / 2]))
+# Slack (m) beyond the object's extent, the gels' reach and the sensor poses' tolerance before sensors are
+# called too far apart: the check is for poses that are wrong by far (units, frames), never a close call.
+REACH_MARGIN = 0.01
+
+
+def check_sensors_within_reach(T_world_sensors: np.ndarray, touching: np.ndarray, object_extent: float,
+                               pose_tolerance: float) -> None:
+    """InputError naming the first two touching sensors whose landmarks are too far apart for one object to
+    touch both: farther than ``object_extent`` (m, at least the object's diameter, e.g. its bounding box's
+    diagonal) plus each gel's reach (``GEL_REACH``), ``pose_tolerance`` (m, ``pair_distance_tolerance``) and
+    ``REACH_MARGIN``. T_world_sensors (L, 4, 4); touching (L,) bool (``Contacts.touching``: a lifted finger may
+    be anywhere). When the sensors are a metre or more apart and would be within reach with their translations
+    read as millimetres, the error says so."""
+    points = contact_points(np.asarray(T_world_sensors, dtype=np.float64))
+    on = np.flatnonzero(np.asarray(touching, dtype=bool))
+    allowed = float(object_extent) + 2.0 * GEL_REACH + float(pose_tolerance) + REACH_MARGIN
+    for b in on:
+        for a in on[on < b]:
+            distance = float(np.linalg.norm(points[b] - points[a]))
+            if distance > allowed:
+                in_mm = distance >= 1.0 and distance / 1000.0 <= allowed  # no hand's fingertips are a metre apart
+                hint = ("; sensor poses are in metres, and these look like millimetres: divide the translations by "
+                        "1000" if in_mm else "; check the sensor poses and their order")
+                raise InputError(f"sensors {a} and {b} both touch, but their contacts are {distance:.3g} m apart and "
+                                 f"the object spans at most {object_extent:.3g} m: no pose can touch both{hint}")
+
+
+class PenetrationWarning(UserWarning):
+    """The best pose presses deep into a sensor: the sensor poses are likely wrong (``warn_if_pressed_in``)."""
+
+
+# How far (m) beyond the sensor poses' declared error (the ranking's penetration allowance) the best pose may
+# press into a sensor before the estimate is warned about. On the pipeline's scene sets the best pose
+# presses at most 3 mm beyond it (docs/real_sensors.md); a sensor pose given inverted, about 8 mm.
+PENETRATION_WARNING = 0.005
+
+
+def warn_if_pressed_in(penetrations: np.ndarray, allowance: float, stacklevel: int = 4) -> None:
+    """A ``PenetrationWarning`` when the best pose's deepest penetration, penetrations (L,) m per sensor (NaN
+    for none), exceeds ``allowance`` (m, ``SensorSettings.contact_sigma``) by more than ``PENETRATION_WARNING``:
+    no pose explains the contacts without pressing into a sensor. stacklevel: as ``warnings.warn``'s."""
+    depths = np.nan_to_num(np.asarray(penetrations, dtype=np.float64), nan=0.0)
+    if depths.size == 0 or depths.max() <= allowance + PENETRATION_WARNING:
+        return
+    i = int(np.argmax(depths))
+    warnings.warn(f"the best pose presses {1e3 * depths[i]:.1f} mm into sensor {i}'s body, "
+                  f"{1e3 * (depths[i] - allowance):.1f} mm more than the sensor poses' declared error allows "
+                  "(sensors.pose_sigma_mm, sensors.pose_sigma_deg): no pose fits the contacts without pressing into a "
+                  "sensor, so the estimate is likely wrong. Check that each pose is T_world_sensor (the sensor's "
+                  "frame in the world, not its inverse), in metres, in the DIGIT frame of docs/design.md, and in "
+                  "the images' order", PenetrationWarning, stacklevel=stacklevel)

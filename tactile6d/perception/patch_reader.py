@@ -34,11 +34,38 @@ def read_patch(image: np.ndarray, no_contact: np.ndarray, fit: photometric.Light
     return image_to_patch(image, no_contact, model)
 
 
+def _ready() -> bool:
+    """A worker's first task: nothing, once it has imported the reading code."""
+    return True
+
+
+def started_pool(processes: int) -> concurrent.futures.ProcessPoolExecutor:
+    """A spawn pool of ``processes`` workers (``worker_context``), returned once one of them has started: a
+    worker that dies while starting is an error here, before any image is queued. (A spawn worker imports the
+    caller's script again; without an ``if __name__ == "__main__":`` guard the script starts another pool
+    there and the worker dies. Its pool is then broken, but with images queued behind it Python 3.11's pool
+    can wait forever on the pipe the dead worker should have emptied.)"""
+    pool = concurrent.futures.ProcessPoolExecutor(processes, mp_context=worker_context())
+    try:
+        pool.submit(_ready).result()
+    except concurrent.futures.process.BrokenProcessPool as exc:
+        shutdown_pool(pool)
+        raise RuntimeError("the contact patches' worker processes died while starting: a script that tracks a "
+                           "stream (Tracker.track) must keep its top-level code under `if __name__ == "
+                           "\"__main__\":`, since each worker imports the script again (or set "
+                           "track.read_ahead=0 to read the patches in this process)") from exc
+    except BaseException:
+        shutdown_pool(pool)
+        raise
+    return pool
+
+
 class PatchReader:
     """``processes`` worker processes that read contact patches; a context manager (``close``).
 
-    The pool starts with the first images submitted (each worker imports the reading code: about a second,
-    while the caller goes on) and is reused until ``close``; one reader may serve several trackers in turn.
+    The pool starts with the first images submitted (each worker imports the reading code: about a second, which
+    the first submission waits for, ``started_pool``) and is reused until ``close``; one reader may serve several
+    trackers in turn.
     """
 
     def __init__(self, processes: int):
@@ -54,7 +81,7 @@ class PatchReader:
         if not len(images) == len(no_contacts) == len(fits):
             raise ValueError(f"{len(images)} images, {len(no_contacts)} no-contact images and {len(fits)} light fits")
         if self._pool is None:
-            self._pool = concurrent.futures.ProcessPoolExecutor(self.processes, mp_context=worker_context())
+            self._pool = started_pool(self.processes)
         return [self._pool.submit(read_patch, image, nc, fit, model)
                 for image, nc, fit in zip(images, no_contacts, fits)]
 

@@ -74,7 +74,7 @@ class SceneSet:
 
 
 def scene_set_from_artifact(art: Artifact) -> SceneSet:
-    """A SceneSet from a ``scenes`` artifact (``tactile6d.io.read_artifact(path, "scenes")``)."""
+    """A SceneSet from a ``scenes`` artifact (``tactile6d.data.hdf5.read_artifact(path, "scenes")``)."""
     extra = {k: np.asarray(v) for k, v in art.data.items() if k not in SCENE_FIELDS and k != "backgrounds"}
     backgrounds = np.asarray(art["backgrounds"]) if "backgrounds" in art else None
     return SceneSet(**{k: np.asarray(art[k]) for k in SCENE_FIELDS}, backgrounds=backgrounds, extra=extra)
