@@ -103,6 +103,10 @@ def test_errors_name_the_folder_or_file(tmp_path):
     (directory / "frames.json").write_text(json.dumps({"stamps": [0.0, 0.2, 0.1]}))
     with pytest.raises(InputError, match=r"frames\.json: 'stamps' must be strictly increasing"):
         iter_sequence_dir(directory)
+    (directory / "frames.json").write_text(json.dumps({"stamps": [-1.0, 0.1, 0.2]}))
+    with pytest.raises(InputError, match=r"frames\.json: 'stamps' must be seconds >= 0 \(ROS time\), got -1.0 for "
+                                         r"frame folder 000000"):
+        iter_sequence_dir(directory)
     (directory / "frames.json").unlink()
     # a frame with another number of sensors
     (directory / "000002" / "poses_sensors.txt").write_text((directory / "000002" / "poses_sensors.txt").read_text()
@@ -122,3 +126,17 @@ def test_bad_arrays_are_refused(tmp_path):
     with pytest.raises(InputError, match=r"stamps must be \(3,\) finite, strictly increasing"):
         write_sequence_dir(tmp_path / "b", T, images, stamps=[0.0, 0.0, 1.0])
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_frame_numbers_that_skip_are_a_warning_naming_them(tmp_path):
+    from tactile6d.data.sequence_dirs import SequenceGapWarning
+
+    T, images, _ = sequence(n_frames=8, n_sensors=1)
+    directory = write_sequence_dir(tmp_path / "seq", T, images)
+    for k in (2, 3, 4, 6):
+        for f in (directory / f"{k:06d}").iterdir():
+            f.unlink()
+        (directory / f"{k:06d}").rmdir()
+    with pytest.warns(SequenceGapWarning, match=r"seq: frame folders 000002-000004, 000006 missing \(4 frames\)"):
+        frames = list(iter_sequence_dir(directory))
+    assert [f[0] for f in frames] == [0, 1, 5, 7]

@@ -224,7 +224,7 @@ def test_fixed_sensor_poses_from_a_file(artifacts, recording):
     "argv,message",
     [(["--bag", "BAG"], "--bag needs --images"),
      (["--bag", "BAG", "--images", *TOPICS], "--bag needs the sensor poses"),
-     (["--sequence", "SEQUENCE", "--frames", *FRAMES], "--images, --frames and --poses go with --bag"),
+     (["--sequence", "SEQUENCE", "--frames", *FRAMES], "--images, --frames, --poses and --raw-camera-frames go with --bag"),
      (["--sequence", "SEQUENCE", "--background", "first-frames", "a.png"], "first-frames stands alone"),
      (["--sequence", "SEQUENCE", "--background-frames", "4"], "--background-frames must be at least 5")],
 )
@@ -384,3 +384,57 @@ def test_a_no_contact_image_of_another_unit_draws_the_hint_to_take_the_streams_o
     assert hint_lines([caught(UnitWarning)], learned=True) == []
     assert hint_lines([caught(LightWarning)], learned=False) == []
 
+
+
+@pytest.mark.slow
+def test_a_frame_that_cannot_be_read_ends_the_stream_after_the_outputs_of_those_before(capsys, artifacts, recording,
+                                                                                   tmp_path):
+    """Frame 2's image is rotated (the camera's raw frame): frames 0 and 1 are answered, the BOP CSV, pose bag and
+    figure hold them, a note says so, and the error ends the command with status 2."""
+    import shutil
+
+    from tactile6d.data.hdf5 import read_tactile_image, write_tactile_image
+
+    sequence = shutil.copytree(recording["sequence"], tmp_path / "sequence")
+    image = read_tactile_image(sequence / "000002" / "Image_heatmap_1.png")
+    write_tactile_image(sequence / "000002" / "Image_heatmap_1.png", np.ascontiguousarray(np.rot90(image)))
+    csv, out_bag, png = tmp_path / "r.csv", tmp_path / "poses.mcap", tmp_path / "t.png"
+    code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(sequence), "--artifacts", str(artifacts),
+                         "--bop", str(csv), "--obj-id", "7", "--out-bag", str(out_bag), "--plot", str(png), *BASELINE)
+    assert code == 2
+    assert [int(line.split()[0]) for line in out.splitlines()] == [0, 1]
+    lines = err.splitlines()
+    assert lines[-2] == "note: stopped at the error below; --bop, --out-bag, --plot hold the 2 frames tracked before it"
+    assert lines[-1].startswith("error: ") and "000002" in lines[-1] and "rotated by 90 degrees" in lines[-1]
+    assert [row.im_id for row in bop.read_bop_csv(csv)] == [0, 1]
+    assert out_bag.is_file() and len(rosbag_io.read_pose_bag(out_bag)[1]) == 2  # one .mcap file, as named
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.slow
+def test_an_output_bag_that_exists_is_refused_before_tracking(capsys, artifacts, recording, tmp_path):
+    (tmp_path / "poses").mkdir()
+    with pytest.raises(SystemExit) as exited:
+        cli.main(["track", "--object", OBJECT, "--sequence", str(recording["sequence"]), "--artifacts", str(artifacts),
+                  "--out-bag", str(tmp_path / "poses"), *BASELINE])
+    out, err = capsys.readouterr()
+    assert exited.value.code == 2 and out == ""
+    assert err.splitlines()[-1].endswith(f"--out-bag {tmp_path / 'poses'} exists already; the poses are written to "
+                                         "a new bag")
+
+
+@pytest.mark.slow
+def test_frames_without_stamps_get_their_number_over_fps(artifacts, recording, tmp_path):
+    import shutil
+
+    sequence = shutil.copytree(recording["sequence"], tmp_path / "sequence")
+    (sequence / "frames.json").unlink()
+    frames = track_json(["--sequence", str(sequence), "--artifacts", str(artifacts), "--fps", "10", *BASELINE])
+    assert [f["stamp"] for f in frames] == [k / 10 for k in range(F)]
+
+
+def test_help_shows_no_rest_markup(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["track", "--help"])
+    out = capsys.readouterr().out
+    assert "``" not in out and "tactile6d track: follow an object's pose over a stream of frames" in out

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import re
 import sys
 
 from tactile6d.core.errors import exit_on_error
@@ -31,6 +32,11 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("calibrate-sensors",): ("calibrate_sensors", "each sensor's mounting offset, from grasps of a known object at a known pose"),
     ("add-object",): ("add_object", "a mesh file of yours as a library object: check it, configure it, make its artifacts"),
 }
+
+
+def description(doc: str) -> str:
+    """A command module's docstring -> its first line as ``--help`` shows it: reST's ``code`` marks taken out."""
+    return re.sub(r"``([^`]*)``", r"\1", doc.strip().splitlines()[0])
 
 
 def usage() -> str:

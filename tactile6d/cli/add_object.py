@@ -31,6 +31,7 @@ from pathlib import Path
 
 import yaml
 
+from tactile6d.cli import description
 from tactile6d.core.config import composed_params_yaml
 from tactile6d.core.errors import ConfigError, InputError
 from tactile6d.data.object_artifacts import OWN_STAGES
@@ -41,7 +42,7 @@ OWN_FILE = Path("conf") / "own" / "default.yaml"
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="tactile6d add-object", description=__doc__.splitlines()[0],
+    parser = argparse.ArgumentParser(prog="tactile6d add-object", description=description(__doc__),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("name", help="the object's name (letters, digits, _ . -), as estimate and identify take it")
     parser.add_argument("mesh", help="the mesh file: OBJ, STL, PLY or GLB")

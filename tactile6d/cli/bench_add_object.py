@@ -26,6 +26,7 @@ from pathlib import Path
 import pybullet_data
 import trimesh
 
+from tactile6d.cli import description
 from tactile6d.cli.add_object import OWN_FILE, dvc_targets, stage_times
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
@@ -63,7 +64,7 @@ def own_artifacts(repo: Path, name: str) -> list[Path]:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d bench add-object", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d bench add-object", description=description(__doc__))
     parser.add_argument("--faces", type=int, default=20_000, help="subdivide the duck to at least this many faces")
     parser.add_argument("--mesh", default=None, help="time this mesh file instead (with --units, --scale)")
     parser.add_argument("--units", default="cm")

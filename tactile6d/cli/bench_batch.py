@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile6d.cli import description
 import tactile6d
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
@@ -98,7 +99,7 @@ def timings(arrivals: list[float], results: list[dict]) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d bench batch", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d bench batch", description=description(__doc__))
     parser.add_argument("--scenes-root", default=None, metavar="DIR",
                         help="folder of scene folders (default: the paper's triplets in the data directory)")
     parser.add_argument("--object", default="auto", help="object of every scene, or 'auto' (default)")

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from tactile6d.cli import description
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ArtifactError, InputError
 from tactile6d.core.settings import Settings
@@ -69,7 +70,7 @@ def time_configuration(estimators: dict[str, Estimator], scenes: list) -> dict[s
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d bench estimate", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d bench estimate", description=description(__doc__))
     parser.add_argument("--object", action="append", default=None, help="object to include (repeatable; default: all)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--faithful-scenes", type=int, default=2, help="triplets timed on the gd path (0: skip)")

@@ -18,6 +18,7 @@ import resource
 
 import numpy as np
 
+from tactile6d.cli import description
 from tactile6d.cli.bench_estimate import paper_triplets
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
@@ -29,7 +30,7 @@ STEPS = ("encode", "objects", "guess", "refine", "total")
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d bench identify", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d bench identify", description=description(__doc__))
     parser.add_argument("--object", action="append", default=None, help="library object (repeatable; default: all)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value")

@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
+from tactile6d.cli import description
 from tactile6d.core import sensor
 from tactile6d.core.config import compose_config, section_to_dict
 from tactile6d.core.geometry import invert_pose
@@ -42,7 +43,7 @@ def database_poses(mesh: trimesh.Trimesh, n: int, press_depth: float, roll: str,
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d bench render", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d bench render", description=description(__doc__))
     parser.add_argument("--object", default="002_master_chef_can", help="YCB object (data directory ycb/<name>)")
     parser.add_argument("-n", type=int, default=200, help="images to time")
     parser.add_argument("--seed", type=int, default=0)

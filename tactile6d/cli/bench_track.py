@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from tactile6d.cli import description
 from tactile6d.core.config import compose_config
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact
@@ -33,7 +34,7 @@ from tactile6d.perception.patch_reader import PatchReader
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d bench track", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d bench track", description=description(__doc__))
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--sequences", type=int, default=None, help="time the first N sequences (default: all)")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (e.g. track.threads=1)")

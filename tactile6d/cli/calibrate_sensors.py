@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tactile6d.cli import description
 from tactile6d.cli.estimate import (AUTO, FROM_SCENES, EstimatorCache, add_scene_arguments, background_option,
                                     collect_scenes, object_of, scene_backgrounds, split_overrides, warnings_to_lines,
                                     write)
@@ -53,7 +54,7 @@ FEW_GRASPS = 3
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="tactile6d calibrate-sensors",
-        description=__doc__.split("\n")[0],
+        description=description(__doc__),
         usage=("tactile6d calibrate-sensors --object NAME|auto --scene DIR [DIR ...] [--object-pose FILE] "
                "[--out FILE] [options] [key=value ...]"),
     )

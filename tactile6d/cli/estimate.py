@@ -64,6 +64,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tactile6d.cli import description
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, NoMatch, Tactile6dError
@@ -91,7 +92,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     """Options, with the ``key=value`` words that landed among ``--scene``'s folders moved to overrides."""
     parser = argparse.ArgumentParser(
         prog="tactile6d estimate",
-        description=__doc__.split("\n")[0],
+        description=description(__doc__),
         usage=("tactile6d estimate --object NAME|auto --scene DIR [DIR ...] [options] [key=value ...]\n"
                "       tactile6d estimate --object NAME|auto --scenes-root DIR [options] [key=value ...]"),
     )

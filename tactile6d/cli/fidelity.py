@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from tactile6d.cli import description
 from tactile6d.core.config import compose_config, section_to_dict
 from tactile6d.core.errors import DataError
 from tactile6d.core.geometry import make_pose
@@ -54,7 +55,7 @@ def load_object(store: DataStore, obj: str) -> MeshArrays:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d fidelity", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d fidelity", description=description(__doc__))
     parser.add_argument("--out", type=Path, default=Path("artifacts/fidelity/montage.png"), help="montage PNG path")
     parser.add_argument("--montage-rows", type=int, default=6, help="sensors shown in the montage")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the first sensor")

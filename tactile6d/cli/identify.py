@@ -28,6 +28,7 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from tactile6d.cli import description
 from tactile6d.cli.estimate import (add_sensor_offsets_argument, is_override, one_scene_background_option,
                                     read_sensor_offsets, scene_backgrounds, split_overrides, use_solver_devices,
                                     warnings_to_lines)
@@ -45,7 +46,7 @@ if TYPE_CHECKING:
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="tactile6d identify", description=__doc__.split("\n")[0],
+        prog="tactile6d identify", description=description(__doc__),
         usage="tactile6d identify --scene DIR [--objects NAME ...] [options] [key=value ...]")
     parser.add_argument("--scene", required=True, metavar="DIR",
                         help="scene folder: poses_sensors.txt + Image_heatmap_<i>.png")

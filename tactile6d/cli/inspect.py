@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tactile6d.cli import description
 from tactile6d.cli.estimate import one_scene_background_option, scene_backgrounds, split_overrides
 from tactile6d.core import sensor
 from tactile6d.core.config import compose_config
@@ -254,7 +255,7 @@ def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray 
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tactile6d inspect", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="tactile6d inspect", description=description(__doc__))
     parser.add_argument("--scene", required=True, metavar="DIR", help="scene folder: poses_sensors.txt + Image_heatmap_<i>.png")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
                         help="the sensors' no-contact image(s): one for every sensor or one per sensor in sensor "

@@ -49,16 +49,18 @@ import sys
 import warnings
 from collections import deque
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tactile6d.cli import description
 from tactile6d.cli.estimate import (EstimatorCache, add_sensor_offsets_argument, read_sensor_offsets, split_overrides,
                                     use_solver_devices, write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
-from tactile6d.core.errors import InputError
+from tactile6d.core.errors import InputError, Tactile6dError
 from tactile6d.core.geometry import pose_to_line, text_to_poses
 from tactile6d.data import bop, rosbag_io, sequence_dirs
 from tactile6d.data.hdf5 import read_background_images
@@ -73,7 +75,7 @@ FIRST_FRAMES = "first-frames"  # --background's word for "each sensor's mean ove
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="tactile6d track", description=__doc__.split("\n")[0],
+        prog="tactile6d track", description=description(__doc__),
         usage=("tactile6d track --object NAME --sequence DIR [options] [key=value ...]\n"
                "       tactile6d track --object NAME --bag FILE --images TOPIC [TOPIC ...] "
                "(--frames FRAME [FRAME ...] | --poses FILE) [options] [key=value ...]"))
@@ -88,8 +90,15 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--world-frame", default="world", help="with --frames: the TF frame poses are given in")
     parser.add_argument("--sync-tolerance", type=float, default=0.02,
                         help="with --bag: seconds within which the other sensors' images join a frame")
+    parser.add_argument("--tf-tolerance", type=float, default=0.25,
+                        help="with --frames: a frame whose TF chain for some sensor uses a transform farther than "
+                             "this (seconds) from its stamp is skipped (TF stopped; default 0.25)")
+    parser.add_argument("--raw-camera-frames", action="store_true",
+                        help="with --bag: the images are the camera's raw frames, 320 wide x 240 high; each is turned "
+                             "as digit-interface's Digit.get_frame() turns it (np.rot90)")
     parser.add_argument("--fps", type=float, default=30.0,
-                        help="frame rate assumed for stamps when the input has none (a sequence without frames.json)")
+                        help="frame rate assumed for stamps when the input has none (a sequence without frames.json): "
+                             "frame number / fps")
     add_sensor_offsets_argument(parser, "every frame's sensor poses")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
                         help="the sensors' no-contact image(s): one for every sensor or one per sensor, or "
@@ -104,7 +113,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--bop", metavar="FILE", help="also write a BOP result CSV")
     parser.add_argument("--scene-id", type=int, default=0, help="BOP scene_id of the stream (default 0)")
     parser.add_argument("--obj-id", type=int, default=None, help="BOP obj_id (default: the YCB-Video id of --object)")
-    parser.add_argument("--out-bag", metavar="PATH", help="also write the poses as geometry_msgs/PoseStamped")
+    parser.add_argument("--out-bag", metavar="PATH", help="also write the poses as geometry_msgs/PoseStamped: a new "
+                        "bag folder, or one file when PATH ends in .mcap or .db3")
     parser.add_argument("--out-topic", default=rosbag_io.POSE_TOPIC, help="topic of --out-bag's poses")
     parser.add_argument("--plot", metavar="PNG", help="also draw the track over time: position and turn from the "
                         "first pose, re-detections, held and ambiguous frames, sensors touching, confidence")
@@ -123,8 +133,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             parser.error("--bag needs --images TOPIC [TOPIC ...]")
         if (args.frames is None) == (args.poses is None):
             parser.error("--bag needs the sensor poses: --frames FRAME [FRAME ...] (TF) or --poses FILE (fixed)")
-    elif args.images or args.frames or args.poses:
-        parser.error("--images, --frames and --poses go with --bag")
+    elif args.images or args.frames or args.poses or args.raw_camera_frames:
+        parser.error("--images, --frames, --poses and --raw-camera-frames go with --bag")
+    if not args.fps > 0:
+        parser.error(f"--fps must be a positive number of frames per second, got {args.fps}")
+    if args.out_bag is not None and Path(args.out_bag).exists():  # found now, not after the whole stream is tracked
+        parser.error(f"--out-bag {args.out_bag} exists already; the poses are written to a new bag")
     if args.bop is not None:
         args.obj_id = bop.object_name_to_bop_id(args.object, args.obj_id)  # an unknown object fails here, not at the end
     return args
@@ -134,10 +148,18 @@ Frame = tuple[int, float | None, np.ndarray, np.ndarray, np.ndarray | None]  # i
 
 
 def frames_of(args: argparse.Namespace) -> Iterator[Frame]:
-    """The input's frames in order, from a sequence folder or a bag."""
+    """The input's frames in order, from a sequence folder or a bag; the folder listing, the bag, its topics and TF
+    chains are checked now (InputError), each frame as it is read. A frame without a stamp gets number / ``--fps``."""
     if args.sequence is not None:
-        yield from sequence_dirs.iter_sequence_dir(args.sequence)
-        return
+        frames = sequence_dirs.iter_sequence_dir(args.sequence)
+    else:
+        frames = bag_frames(args)
+    return ((index, index / args.fps if stamp is None else stamp, T, images, backgrounds)
+            for index, stamp, T, images, backgrounds in frames)
+
+
+def bag_frames(args: argparse.Namespace) -> Iterator[Frame]:
+    """``--bag``'s frames (``rosbag_io.read_bag_frames``, which checks the bag at the call), numbered from 0."""
     fixed = None
     if args.poses is not None:
         path = Path(args.poses)
@@ -148,9 +170,8 @@ def frames_of(args: argparse.Namespace) -> Iterator[Frame]:
         except ValueError as exc:
             raise InputError(f"--poses {path}: {exc}") from exc
     frames = rosbag_io.read_bag_frames(args.bag, args.images, args.frames, args.world_frame, fixed,
-                                       args.sync_tolerance)
-    for k, frame in enumerate(frames):
-        yield k, frame.stamp, frame.T_world_sensors, frame.images, None
+                                       args.sync_tolerance, args.tf_tolerance, args.raw_camera_frames)
+    return ((k, frame.stamp, frame.T_world_sensors, frame.images, None) for k, frame in enumerate(frames))
 
 
 def backgrounds_from_first_frames(frames: Iterator[Frame], count: int, model) -> tuple[np.ndarray, Iterator[Frame]]:
@@ -205,66 +226,117 @@ def main(argv: list[str]) -> int:
     learned = args.background == [FIRST_FRAMES]
     background = read_background_images(args.background) if args.background and not learned else None
     cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args))
-    estimator = cache.load(args.object)
-    frames = frames_of(args)
-    if learned:
-        background, frames = backgrounds_from_first_frames(frames, args.background_frames, estimator.patch_model)
-        write(f"note: each sensor's no-contact image is its mean over the first {args.background_frames} frames "
-              f"(--background {FIRST_FRAMES}), which show nothing touching", sys.stderr)
-    stamps, poses, rows, seconds, modes = [], [], [], [], []
-    drawn: dict[str, list] = {"times": [], "poses": [], "confidence": [], "ambiguous": [], "touching": []}  # --plot
-    with Tracker(estimator, TrackSettings.from_cfg(cfg.track)) as tracker, warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
         warnings.simplefilter("once", UnderdeterminedPoseWarning)
-        read = deque()  # (index, stamp) of the frames handed to the tracker and not yet answered
+        frames = frames_of(args)  # the input checked before the artifacts are loaded
+        estimator = cache.load(args.object)
+        if learned:
+            background, frames = backgrounds_from_first_frames(frames, args.background_frames, estimator.patch_model)
+            write(f"note: each sensor's no-contact image is its mean over the first {args.background_frames} frames "
+                  f"(--background {FIRST_FRAMES}), which show nothing touching", sys.stderr)
+        track = follow(frames, Tracker(estimator, TrackSettings.from_cfg(cfg.track)), cache, background, learned, args)
+    for line in warning_lines(caught) + hint_lines(caught, learned):
+        write(line, sys.stderr)
+    if not track.modes and track.error is None:
+        raise InputError("the input holds no frame")
+    write_outputs(track, args)
+    updates = [s for s, m in zip(track.seconds, track.modes) if m == "update"]
+    median = f"{1e3 * np.median(updates):.1f} ms" if updates else "-"
+    write(f"{len(track.modes)} frames: {track.modes.count('redetect')} re-detections, {track.modes.count('hold')} "
+          f"held, {sum(track.drawn['ambiguous'])} ambiguous; median update {median}", sys.stderr)
+    if track.error is not None:
+        # The frames before the one that failed were answered and their outputs written: say so, then fail.
+        written = [name for name, path in (("--bop", args.bop), ("--out-bag", args.out_bag), ("--plot", args.plot))
+                   if path is not None]
+        if track.modes and written:
+            write(f"note: stopped at the error below; {', '.join(written)} hold the {len(track.modes)} frames "
+                  "tracked before it", sys.stderr)
+        raise track.error
+    return 0
 
-        def stream():
+
+@dataclass
+class Followed:
+    """What ``follow`` gathered over a stream: per frame answered, its stamp, pose, BOP row (frames with a pose),
+    seconds and mode, what ``--plot`` draws; and the error that ended the stream early, if one did."""
+
+    stamps: list = field(default_factory=list)
+    poses: list = field(default_factory=list)
+    rows: list = field(default_factory=list)
+    seconds: list = field(default_factory=list)
+    modes: list = field(default_factory=list)
+    drawn: dict = field(default_factory=lambda: {"times": [], "poses": [], "confidence": [], "ambiguous": [],
+                                                 "touching": []})
+    error: Tactile6dError | None = None
+
+
+def follow(frames: Iterator[Frame], tracker, cache: EstimatorCache, background, learned: bool,
+           args: argparse.Namespace) -> Followed:
+    """Each frame through ``tracker.track``, its line written as it is answered. A frame that cannot be read, or
+    that the tracker refuses (a Tactile6dError), ends the stream: the frames before it are answered all the same,
+    and the error is kept in ``Followed.error`` for the caller to raise once the outputs are written."""
+    out = Followed()
+    read = deque()  # (index, stamp) of the frames handed to the tracker and not yet answered
+
+    def stream():
+        try:
             for index, stamp, T, images, frame_backgrounds in frames:
                 read.append((index, stamp))
                 if learned:  # per frame, as a sequence folder's own: the estimator's default is render.background
                     yield cache.sensor_poses(T), images, background
                 else:
                     yield cache.sensor_poses(T), images, None if background is not None else frame_backgrounds
+        except Tactile6dError as exc:  # reading the next frame failed: the tracker answers those read before it
+            out.error = exc
 
-        for answer in tracker.track(stream()):
-            index, stamp = read.popleft()
-            if args.json:
-                write(json.dumps({"frame": index, "stamp": stamp, **answer.to_dict()}), sys.stdout)
-            else:
-                write(frame_line(index, stamp, answer), sys.stdout)
-            seconds.append(answer.seconds)
-            modes.append(answer.mode)
-            time = index / args.fps if stamp is None else stamp
-            drawn["times"].append(time)
-            drawn["poses"].append(answer.pose)
-            drawn["confidence"].append(np.nan if answer.confidence is None else answer.confidence)
-            drawn["ambiguous"].append(answer.ambiguous)
-            drawn["touching"].append(int(np.count_nonzero(answer.touching)))
-            if np.isfinite(answer.pose).all():
-                stamps.append(time)
-                poses.append(answer.pose)
-                score = 1.0 if answer.confidence is None else answer.confidence
-                rows.append(bop.BopRow(args.scene_id, index, args.obj_id or 0, score, answer.pose, answer.seconds))
-    for line in warning_lines(caught) + hint_lines(caught, learned):
-        write(line, sys.stderr)
-    if not modes:
-        raise InputError("the input holds no frame")
+    with tracker:
+        try:
+            for answer in tracker.track(stream()):
+                index, stamp = read.popleft()
+                add_answer(out, index, stamp, answer, args)
+        except Tactile6dError as exc:
+            out.error = exc
+    return out
+
+
+def add_answer(out: Followed, index: int, stamp: float, answer: TrackedFrame, args: argparse.Namespace) -> None:
+    """One answered frame: its line on stdout, and what the outputs and the summary need of it in ``out``."""
+    if args.json:
+        write(json.dumps({"frame": index, "stamp": stamp, **answer.to_dict()}), sys.stdout)
+    else:
+        write(frame_line(index, stamp, answer), sys.stdout)
+    out.seconds.append(answer.seconds)
+    out.modes.append(answer.mode)
+    out.drawn["times"].append(stamp)
+    out.drawn["poses"].append(answer.pose)
+    out.drawn["confidence"].append(np.nan if answer.confidence is None else answer.confidence)
+    out.drawn["ambiguous"].append(answer.ambiguous)
+    out.drawn["touching"].append(int(np.count_nonzero(answer.touching)))
+    if np.isfinite(answer.pose).all():
+        out.stamps.append(stamp)
+        out.poses.append(answer.pose)
+        score = 1.0 if answer.confidence is None else answer.confidence
+        out.rows.append(bop.BopRow(args.scene_id, index, args.obj_id or 0, score, answer.pose, answer.seconds))
+
+
+def write_outputs(track: Followed, args: argparse.Namespace) -> None:
+    """``--bop``, ``--out-bag`` and ``--plot`` of the frames answered (none when no frame was)."""
+    if not track.modes:
+        return
     if args.bop is not None:
-        bop.write_bop_csv(args.bop, rows)
+        bop.write_bop_csv(args.bop, track.rows)
     if args.out_bag is not None:
-        rosbag_io.write_pose_bag(args.out_bag, np.array(stamps), np.array(poses).reshape(-1, 4, 4),
+        rosbag_io.write_pose_bag(args.out_bag, np.array(track.stamps), np.array(track.poses).reshape(-1, 4, 4),
                                  args.world_frame, args.out_topic)
     if args.plot is not None:
         import matplotlib.pyplot as plt  # matplotlib: only when drawing
 
         from tactile6d.evaluation.stream_figure import stream_figure
 
-        figure = stream_figure(np.array(drawn["times"]), np.array(drawn["poses"]), modes, np.array(drawn["confidence"]),
-                               np.array(drawn["ambiguous"]), np.array(drawn["touching"]), args.object)
+        drawn = track.drawn
+        figure = stream_figure(np.array(drawn["times"]), np.array(drawn["poses"]), track.modes,
+                               np.array(drawn["confidence"]), np.array(drawn["ambiguous"]), np.array(drawn["touching"]),
+                               args.object)
         figure.savefig(args.plot, dpi=100)
         plt.close(figure)
-    updates = [s for s, m in zip(seconds, modes) if m == "update"]
-    median = f"{1e3 * np.median(updates):.1f} ms" if updates else "-"
-    write(f"{len(modes)} frames: {modes.count('redetect')} re-detections, {modes.count('hold')} held, "
-          f"{sum(drawn['ambiguous'])} ambiguous; median update {median}", sys.stderr)
-    return 0

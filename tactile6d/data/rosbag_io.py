@@ -16,8 +16,10 @@ Poses are 4x4 float64 ``T_a_b`` in metres; images (320, 240, 3) uint8 RGB (320 r
 from __future__ import annotations
 
 import contextlib
+import heapq
 import math
 import os
+import shutil
 import warnings
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
@@ -178,34 +180,48 @@ def _topic_connections(reader, path, topics: Sequence[str], types: Sequence[str]
 # --- images ---------------------------------------------------------------------------------------------------
 
 
-def _check_digit_shape(rows: int, cols: int, topic: str) -> None:
+RAW_FRAME_SHAPE = (TACTILE_IMAGE_SHAPE[1], TACTILE_IMAGE_SHAPE[0])  # the camera's frame: 240 rows x 320 columns
+
+
+def _check_digit_shape(rows: int, cols: int, topic: str, raw_camera_frames: bool) -> None:
+    if raw_camera_frames:
+        if (rows, cols) != RAW_FRAME_SHAPE:
+            raise InputError(f"{topic}: an image is {cols} wide x {rows} high; a DIGIT camera's raw frame "
+                             f"(--raw-camera-frames) is {RAW_FRAME_SHAPE[1]} wide x {RAW_FRAME_SHAPE[0]} high")
+        return
     problem = tactile_shape_problem((rows, cols, 3), f"{topic}: an image")
     if problem is not None:
+        if (rows, cols) == RAW_FRAME_SHAPE:
+            problem += " (tactile6d track --bag: --raw-camera-frames turns them so)"
         raise InputError(problem)
 
 
-def image_from_message(msg, topic: str) -> np.ndarray:
+def image_from_message(msg, topic: str, raw_camera_frames: bool = False) -> np.ndarray:
     """A deserialised ``sensor_msgs/msg/Image`` (encoding rgb8 or bgr8) or ``CompressedImage`` (png, jpeg) ->
-    (320, 240, 3) uint8 RGB (a copy). InputError naming the topic for another encoding, an undecodable image or
-    another size."""
+    (320, 240, 3) uint8 RGB (a copy). With ``raw_camera_frames`` the message holds the camera's raw frame (240 rows
+    x 320 columns), turned as digit-interface's ``Digit.get_frame()`` turns it (``np.rot90``). InputError naming the
+    topic for another encoding, an undecodable image or another size."""
     if msg.__msgtype__ == COMPRESSED_IMAGE:
         import cv2
 
         bgr = cv2.imdecode(np.frombuffer(np.asarray(msg.data, dtype=np.uint8), dtype=np.uint8), cv2.IMREAD_COLOR)
         if bgr is None:
             raise InputError(f"{topic}: a CompressedImage (format {msg.format!r}) that OpenCV cannot decode")
-        _check_digit_shape(bgr.shape[0], bgr.shape[1], topic)
-        return np.ascontiguousarray(bgr[..., ::-1])
-    encoding = msg.encoding.lower()
-    if encoding not in ("rgb8", "bgr8"):
-        raise InputError(f"{topic}: image encoding {msg.encoding!r}, expected rgb8 or bgr8")
-    rows, cols, step = int(msg.height), int(msg.width), int(msg.step)
-    _check_digit_shape(rows, cols, topic)
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if step < 3 * cols or data.size < rows * step:
-        raise InputError(f"{topic}: image data of {data.size} bytes with step {step} for {cols} x {rows} {encoding}")
-    image = data[: rows * step].reshape(rows, step)[:, : 3 * cols].reshape(rows, cols, 3)
-    return np.ascontiguousarray(image[..., ::-1] if encoding == "bgr8" else image)
+        _check_digit_shape(bgr.shape[0], bgr.shape[1], topic, raw_camera_frames)
+        image = bgr[..., ::-1]
+    else:
+        encoding = msg.encoding.lower()
+        if encoding not in ("rgb8", "bgr8"):
+            raise InputError(f"{topic}: image encoding {msg.encoding!r}, expected rgb8 or bgr8")
+        rows, cols, step = int(msg.height), int(msg.width), int(msg.step)
+        _check_digit_shape(rows, cols, topic, raw_camera_frames)
+        data = np.asarray(msg.data, dtype=np.uint8)
+        if step < 3 * cols or data.size < rows * step:
+            raise InputError(f"{topic}: image data of {data.size} bytes with step {step} for {cols} x {rows} "
+                             f"{encoding}")
+        image = data[: rows * step].reshape(rows, step)[:, : 3 * cols].reshape(rows, cols, 3)
+        image = image[..., ::-1] if encoding == "bgr8" else image
+    return np.ascontiguousarray(np.rot90(image) if raw_camera_frames else image)
 
 
 # --- the TF tree ----------------------------------------------------------------------------------------------
@@ -233,6 +249,13 @@ class _Edge:
         """The latest transform with a stamp <= ``stamp``; the earliest one when all are later."""
         index = int(np.searchsorted(self.stamps, stamp, side="right")) - 1
         return self.T[max(index, 0)]
+
+    def age(self, stamp: float) -> float:
+        """How far (seconds) the transform ``at`` gives for ``stamp`` is from it: ``stamp`` minus its stamp, or its
+        stamp minus ``stamp`` when all are later; 0 for a static transform."""
+        index = int(np.searchsorted(self.stamps, stamp, side="right")) - 1
+        used = float(self.stamps[max(index, 0)])
+        return 0.0 if used == -math.inf else abs(stamp - used)
 
 
 def _transform_to_pose(transform) -> np.ndarray:
@@ -298,6 +321,11 @@ def _compose(children: list[str], edges: dict[str, _Edge], stamp: float) -> np.n
     return T
 
 
+def _tf_age(plan: tuple[list[str], list[str]], edges: dict[str, _Edge], stamp: float) -> float:
+    """The oldest (or, before the first, the farthest ahead) of the transforms one chain plan uses at ``stamp``."""
+    return max((edges[child].age(stamp) for child in (*plan[0], *plan[1])), default=0.0)
+
+
 def _tf_poses_at(plans: list[tuple[list[str], list[str]]], edges: dict[str, _Edge], stamp: float) -> np.ndarray:
     """T_world_sensors (L, 4, 4) at ``stamp`` seconds, one per chain plan (``_chain_plan``)."""
     return np.stack([invert_pose(_compose(up_w, edges, stamp)) @ _compose(up_s, edges, stamp) for up_s, up_w in plans])
@@ -306,41 +334,84 @@ def _tf_poses_at(plans: list[tuple[list[str], list[str]]], edges: dict[str, _Edg
 # --- reading frames -------------------------------------------------------------------------------------------
 
 
-def _synchronise(messages: Iterable[tuple[int, float, object]], n_topics: int, tolerance: float):
+# How far (seconds) the first topic may run ahead of a frame before the frame is decided without waiting for the
+# other topics' later messages: a sensor that stopped publishing would otherwise hold every later frame (and its
+# images) in memory until the bag ends. Recorders write messages within milliseconds of their stamps.
+SYNC_HORIZON = 1.0
+# How far (seconds) every topic must have run past a frame before it is decided, beyond the synchronisation
+# tolerance: messages recorded up to this late (a frame's images after the next frame's) still join their frame.
+REORDER_WINDOW = 0.1
+
+
+class SyncCounts:
+    """What ``_synchronise`` left out: ``missing[k]`` frames where topic k had no message within the tolerance
+    (k >= 1), ``first_missing[k]`` the stamp of the first such frame, and ``late`` messages of the first topic that
+    came after a later-stamped one had been emitted (out of order)."""
+
+    def __init__(self, n_topics: int):
+        self.missing = [0] * n_topics
+        self.first_missing: list[float | None] = [None] * n_topics
+        self.late = 0
+
+
+def _synchronise(messages: Iterable[tuple[int, float, object]], n_topics: int, tolerance: float,
+                 counts: SyncCounts | None = None):
     """Group stamped messages of ``n_topics`` topics into frames driven by topic 0.
 
     messages: (topic index, stamp seconds, message) in bag order -> yields (stamp, [message per topic]) for each
-    message of topic 0, with each other topic's message nearest in stamp, or (stamp, None) when some topic has none
-    within ``tolerance``. A frame is emitted once every other topic has a message later than stamp + tolerance (or
-    the bag ended), so that only a window of messages is held: each topic's stamps are taken to increase.
+    message of topic 0, in stamp order, with each other topic's message nearest in stamp, or (stamp, None) when some
+    topic has none within ``tolerance``. A frame is emitted once every topic has a message later than its stamp +
+    ``REORDER_WINDOW`` (+ tolerance for the others), once topic 0 is ``SYNC_HORIZON`` seconds past it (a topic that
+    fell silent), or when the bag ends, so that only a window of messages is held. A topic-0 message stamped before
+    one already emitted (recorded out of order, later than the window) is left out. ``counts`` (``SyncCounts``) is
+    filled with what was left out.
     """
-    pending: deque = deque()
+    counts = counts if counts is not None else SyncCounts(n_topics)
+    pending: list = []  # a heap of (stamp, arrival, message) of topic 0
     buffers = [deque() for _ in range(n_topics)]
     latest = [-math.inf] * n_topics
+    emitted = -math.inf
+    arrivals = 0
 
     def emit(stamp, first):
         chosen = [first]
-        for buffer in buffers[1:]:
+        for k, buffer in enumerate(buffers[1:], start=1):
             best = min(buffer, key=lambda item: abs(item[0] - stamp), default=None)
             if best is None or abs(best[0] - stamp) > tolerance:
+                counts.missing[k] += 1
+                if counts.first_missing[k] is None:
+                    counts.first_missing[k] = stamp
                 chosen = None
-                break
-            chosen.append(best[1])
+            elif chosen is not None:
+                chosen.append(best[1])
         for buffer in buffers[1:]:
             while buffer and buffer[0][0] < stamp - tolerance:
                 buffer.popleft()
         return stamp, chosen
 
+    def ready(stamp):
+        if latest[0] > stamp + SYNC_HORIZON:
+            return True
+        return latest[0] > stamp + REORDER_WINDOW and all(latest[j] > stamp + tolerance + REORDER_WINDOW
+                                                           for j in range(1, n_topics))
+
     for k, stamp, msg in messages:
         if k == 0:
-            pending.append((stamp, msg))
+            if stamp <= emitted:
+                counts.late += 1
+                continue
+            heapq.heappush(pending, (stamp, arrivals, msg))
+            arrivals += 1
         else:
             buffers[k].append((stamp, msg))
-            latest[k] = max(latest[k], stamp)
-        while pending and all(latest[j] > pending[0][0] + tolerance for j in range(1, n_topics)):
-            yield emit(*pending.popleft())
+        latest[k] = max(latest[k], stamp)
+        while pending and ready(pending[0][0]):
+            stamp0, _, first = heapq.heappop(pending)
+            emitted = stamp0
+            yield emit(stamp0, first)
     while pending:
-        yield emit(*pending.popleft())
+        stamp0, _, first = heapq.heappop(pending)
+        yield emit(stamp0, first)
 
 
 def read_bag_frames(
@@ -350,47 +421,56 @@ def read_bag_frames(
     world_frame: str = "world",
     fixed_poses: np.ndarray | None = None,
     sync_tolerance: float = 0.02,
+    tf_tolerance: float = 0.25,
+    raw_camera_frames: bool = False,
 ) -> Iterator[BagFrame]:
     """The frames of L DIGIT sensors recorded in a ROS 2 bag, read lazily -> an iterator of ``BagFrame``.
 
-    image_topics: one topic per sensor (``sensor_msgs/msg/Image`` rgb8/bgr8, or ``CompressedImage`` png/jpeg).
-    Frames are driven by the FIRST topic's messages: each other topic contributes its message nearest in header stamp,
-    if within ``sync_tolerance`` seconds; a frame where some sensor has none is skipped, and the number skipped is
-    reported once the bag is read (``SkippedFramesWarning``).
+    image_topics: one topic per sensor (``sensor_msgs/msg/Image`` rgb8/bgr8, or ``CompressedImage`` png/jpeg), each
+    image 240 wide x 320 high, or with ``raw_camera_frames`` the camera's raw frame (``image_from_message``).
+    Frames are driven by the FIRST topic's messages, in header-stamp order: each other topic contributes its message
+    nearest in header stamp, if within ``sync_tolerance`` seconds; a frame where some sensor has none is skipped, as
+    is a first-topic message recorded after a later-stamped one had been read (out of order), and what was skipped is
+    reported once the bag is read, naming the sensors (``SkippedFramesWarning``). A sensor that stops publishing
+    holds up no more than ``SYNC_HORIZON`` seconds of frames.
 
     Sensor poses T_world_sensors (L, 4, 4), metres: exactly one of
     - ``fixed_poses`` (L, 4, 4): the same for every frame;
     - ``sensor_frames``: one TF frame per topic, looked up in the bag's /tf and /tf_static: for each frame, the chain
       ``world_frame`` -> ... -> sensor frame composed from, per edge, the latest transform stamped at or before the
       frame's stamp (no interpolation; /tf_static transforms hold from the start). An edge whose transforms all come
-      after a frame's stamp (recording started before TF was published) uses its earliest one for that frame.
+      after a frame's stamp (recording started before TF was published) uses its earliest one for that frame. A
+      frame whose chain for some sensor uses a transform more than ``tf_tolerance`` seconds from its stamp (TF that
+      stopped, or has not started) is skipped, as tf2 refuses to extrapolate.
 
     The bag, its topics and the TF chains are checked at the call (InputError naming the topic or frame, listing what
     the bag has); images as they are read (InputError naming the topic: encoding, size, a rotated camera).
     """
     image_topics = list(image_topics)
     if not image_topics:
-        raise InputError("read_bag_frames: no image topics given (one per sensor)")
+        raise InputError("no image topics given (one per sensor)")
     if len(set(image_topics)) != len(image_topics):
-        raise InputError(f"read_bag_frames: an image topic is given twice in {image_topics} (one per sensor)")
+        raise InputError(f"an image topic is given twice in {image_topics} (one per sensor)")
     if (sensor_frames is None) == (fixed_poses is None):
-        raise InputError("read_bag_frames: give exactly one of sensor_frames (TF frames, one per image topic) and "
-                         "fixed_poses (L, 4, 4)")
+        raise InputError("give the sensor poses one way: TF frames, one per image topic (--frames), or fixed poses "
+                         "(--poses)")
     if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0):
-        raise InputError(f"read_bag_frames: sync_tolerance {sync_tolerance} must be >= 0 seconds")
+        raise InputError(f"the synchronisation tolerance {sync_tolerance} must be >= 0 seconds")
+    if not (math.isfinite(tf_tolerance) and tf_tolerance >= 0):
+        raise InputError(f"the TF tolerance {tf_tolerance} must be >= 0 seconds")
     n_sensors = len(image_topics)
     if fixed_poses is not None:
         fixed_poses = np.asarray(fixed_poses, dtype=np.float64)
         if fixed_poses.shape != (n_sensors, 4, 4):
-            raise InputError(f"read_bag_frames: fixed_poses has shape {fixed_poses.shape}, expected ({n_sensors}, 4, 4)"
-                             f" for {n_sensors} image topics")
+            raise InputError(f"{len(fixed_poses)} fixed sensor poses (--poses) for {n_sensors} image topics (one "
+                             f"each, in the order of the topics)")
         if not (np.all(np.isfinite(fixed_poses)) and np.all(is_rotation(fixed_poses[:, :3, :3]))):
-            raise InputError("read_bag_frames: fixed_poses are not finite rigid transforms")
+            raise InputError("the fixed sensor poses (--poses) are not finite rigid transforms")
     else:
         sensor_frames = [_frame_id(f) for f in sensor_frames]
         if len(sensor_frames) != n_sensors:
-            raise InputError(f"read_bag_frames: {len(sensor_frames)} sensor frames for {n_sensors} image topics "
-                             f"(one each)")
+            raise InputError(f"{len(sensor_frames)} sensor TF frames (--frames) for {n_sensors} image topics (one "
+                             f"each, in the order of the topics)")
     typestore = _typestore()
     with _open_reader(path) as reader:
         _topic_connections(reader, path, image_topics, (IMAGE, COMPRESSED_IMAGE))
@@ -398,12 +478,17 @@ def read_bag_frames(
         if sensor_frames is not None:
             edges = _read_tf_tree(reader, path, typestore)
             plans = [_chain_plan(_frame_id(world_frame), f, edges, path) for f in sensor_frames]
-    return _iter_bag_frames(path, image_topics, typestore, sync_tolerance, fixed_poses, edges, plans)
+    return _iter_bag_frames(path, image_topics, typestore, sync_tolerance, fixed_poses, edges, plans,
+                            sensor_frames, tf_tolerance, raw_camera_frames)
 
 
-def _iter_bag_frames(path, image_topics, typestore, tolerance, fixed_poses, edges, plans) -> Iterator[BagFrame]:
+def _iter_bag_frames(path, image_topics, typestore, tolerance, fixed_poses, edges, plans, sensor_frames,
+                     tf_tolerance, raw_camera_frames) -> Iterator[BagFrame]:
     index = {topic: k for k, topic in enumerate(image_topics)}
-    skipped = total = 0
+    counts = SyncCounts(len(image_topics))
+    stale = [0] * len(image_topics)
+    first_stale: list[float | None] = [None] * len(image_topics)
+    read = total = 0
     with _open_reader(path) as reader:
         conns = [c for topic in image_topics for c in reader.topics[topic].connections]
 
@@ -412,17 +497,36 @@ def _iter_bag_frames(path, image_topics, typestore, tolerance, fixed_poses, edge
                 msg = typestore.deserialize_cdr(raw, conn.msgtype)
                 yield index[conn.topic], _header_seconds(msg.header, log_time), msg
 
-        for stamp, chosen in _synchronise(stamped(), len(image_topics), tolerance):
+        for stamp, chosen in _synchronise(stamped(), len(image_topics), tolerance, counts):
             total += 1
             if chosen is None:
-                skipped += 1
                 continue
-            images = np.stack([image_from_message(msg, image_topics[k]) for k, msg in enumerate(chosen)])
+            if plans:
+                ages = [_tf_age(plan, edges, stamp) for plan in plans]
+                if max(ages) > tf_tolerance:
+                    for k, age in enumerate(ages):
+                        if age > tf_tolerance:
+                            stale[k] += 1
+                            first_stale[k] = stamp if first_stale[k] is None else first_stale[k]
+                    continue
+            images = np.stack([image_from_message(msg, image_topics[k], raw_camera_frames)
+                               for k, msg in enumerate(chosen)])
             T = fixed_poses.copy() if fixed_poses is not None else _tf_poses_at(plans, edges, stamp)
+            read += 1
             yield BagFrame(stamp, T, images)
-    if skipped:
-        warnings.warn(f"{path}: {skipped} of {total} frames skipped: some sensor had no image within "
-                      f"{tolerance} s of the first topic's ({image_topics[0]})", SkippedFramesWarning, stacklevel=2)
+    reasons = [f"sensor {k} ({image_topics[k]}) had no image within {tolerance} s of the first topic's in "
+               f"{counts.missing[k]}, from {counts.first_missing[k]:.3f} s on"
+               for k in range(1, len(image_topics)) if counts.missing[k]]
+    reasons += [f"sensor {k}'s TF chain (frame {sensor_frames[k]!r}) was more than {tf_tolerance} s from the frame's "
+                f"stamp in {stale[k]}, from {first_stale[k]:.3f} s on (TF stopped or not yet published)"
+                for k in range(len(image_topics)) if stale[k]]
+    if counts.late:
+        reasons.append(f"{counts.late} images of the first topic ({image_topics[0]}) came out of order, after a "
+                       "later-stamped one, and were left out")
+    if reasons:
+        skipped = total + counts.late - read
+        warnings.warn(f"{path}: {skipped} of {total + counts.late} frames skipped: " + "; ".join(reasons),
+                      SkippedFramesWarning, stacklevel=2)
 
 
 # --- writing --------------------------------------------------------------------------------------------------
@@ -443,8 +547,12 @@ def _new_writer(path: str | os.PathLike, storage: str):
 
 def _check_stamps(stamps: np.ndarray, n_frames: int, path) -> np.ndarray:
     stamps = np.asarray(stamps, dtype=np.float64)
-    if stamps.shape != (n_frames,) or not np.all(np.isfinite(stamps)) or np.any(stamps < 0):
-        raise InputError(f"{path}: stamps must be ({n_frames},) finite seconds >= 0, got shape {stamps.shape}")
+    if stamps.shape != (n_frames,):
+        raise InputError(f"{path}: {stamps.shape} stamps for {n_frames} frames (one each)")
+    bad = np.flatnonzero(~np.isfinite(stamps) | (stamps < 0))
+    if len(bad):
+        raise InputError(f"{path}: stamps must be finite seconds >= 0 (ROS time), got {stamps[bad[0]]} for frame "
+                         f"{bad[0]}")
     return stamps
 
 
@@ -544,15 +652,36 @@ def write_pose_bag(
     topic: str = POSE_TOPIC,
     storage: str = "mcap",
 ) -> Path:
-    """Write object poses to a new ROS 2 bag folder ``path`` as ``geometry_msgs/msg/PoseStamped`` on ``topic`` -> path.
+    """Write object poses to a new ROS 2 bag ``path`` as ``geometry_msgs/msg/PoseStamped`` on ``topic`` -> path.
 
     stamps (F,) seconds; T_world_object (F, 4, 4) metres, in frame ``frame_id``. Frames whose pose holds a NaN (no
-    estimate) are left out.
+    estimate) are left out. ``path`` is a new bag folder (storage "mcap" or "sqlite3"), or a new lone ``.mcap`` /
+    ``.db3`` file (its storage then), which ``read_bag_frames`` and ``read_pose_bag`` read as they read a folder.
     """
     T = np.asarray(T_world_object, dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise InputError(f"{path}: T_world_object must have shape (F, 4, 4), got {T.shape}")
     stamps = _check_stamps(stamps, len(T), path)
+    path = Path(path)
+    lone = {".mcap": "mcap", ".db3": "sqlite3"}.get(path.suffix)
+    if lone is None:
+        _write_pose_messages(path, stamps, T, frame_id, topic, storage)
+        return path
+    if path.exists():
+        raise InputError(f"{path}: exists already; a bag is written to a new file")
+    folder = path.with_name(path.name + ".tmp-bag")
+    shutil.rmtree(folder, ignore_errors=True)
+    try:
+        _write_pose_messages(folder, stamps, T, frame_id, topic, lone)
+        (written,) = folder.glob(f"*{path.suffix}")
+        os.replace(written, path)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    return path
+
+
+def _write_pose_messages(path: Path, stamps: np.ndarray, T: np.ndarray, frame_id: str, topic: str, storage: str) -> None:
+    """``write_pose_bag``'s messages into a new bag folder ``path``."""
     types = (typestore := _typestore()).types
     with _new_writer(path, storage) as writer:
         conn = writer.add_connection(topic, POSE_STAMPED, typestore=typestore)
@@ -569,7 +698,6 @@ def write_pose_bag(
                 ),
             )
             writer.write(conn, _log_time(stamp), typestore.serialize_cdr(msg, POSE_STAMPED))
-    return Path(path)
 
 
 def read_pose_bag(path: str | os.PathLike, topic: str = POSE_TOPIC) -> tuple[np.ndarray, np.ndarray]:

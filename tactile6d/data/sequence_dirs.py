@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -144,6 +145,9 @@ def _read_frames_json(directory: Path, frames: list[Path]) -> list[float | None]
             raise InputError(f"{path}: {len(stamps)} stamps for {len(frames)} frame folders")
         if any(b <= a for a, b in zip(stamps, stamps[1:])):
             raise InputError(f"{path}: 'stamps' must be strictly increasing")
+        if stamps and stamps[0] < 0:
+            raise InputError(f"{path}: 'stamps' must be seconds >= 0 (ROS time), got {stamps[0]} for frame folder "
+                             f"{frames[0].name}")
         return [float(s) for s in stamps]
     if meta.get("fps") is not None:
         fps = meta["fps"]
@@ -166,7 +170,18 @@ def iter_sequence_dir(directory: str | os.PathLike) -> Iterator[SequenceFrame]:
     directory = Path(directory)
     frames = sequence_dir_frames(directory)
     stamps = _read_frames_json(directory, frames)
+    gaps = [(int(a.name) + 1, int(b.name) - 1) for a, b in zip(frames, frames[1:]) if int(b.name) > int(a.name) + 1]
+    if gaps:
+        listing = ", ".join(f"{first:06d}" if first == last else f"{first:06d}-{last:06d}" for first, last in gaps)
+        missing = sum(last - first + 1 for first, last in gaps)
+        warnings.warn(f"{directory}: frame folders {listing} missing ({missing} frames): each folder is taken as "
+                      "the next frame, and the tracker counts frames, not seconds (track.redetect_every)",
+                      SequenceGapWarning, stacklevel=2)
     return _iter_frames(directory, frames, stamps)
+
+
+class SequenceGapWarning(UserWarning):
+    """A sequence folder whose frame numbers skip some (``iter_sequence_dir``)."""
 
 
 def _iter_frames(directory: Path, frames: list[Path], stamps: list[float | None]) -> Iterator[SequenceFrame]:
