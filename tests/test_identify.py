@@ -580,3 +580,24 @@ def test_identify_applies_the_sensor_offsets(capsys, units_library, tmp_path):
     applied, written = json.loads(applied)["objects"], json.loads(written)["objects"]
     assert [o["name"] for o in applied] == [o["name"] for o in written]
     np.testing.assert_allclose([o["pose"] for o in applied], [o["pose"] for o in written], atol=1e-9)
+
+
+@pytest.mark.slow
+def test_several_scenes_in_one_call_each_give_a_line_or_an_error(capsys, units_library):
+    """The library loaded once for three scenes: two identified as alone, the missing one an error line (and a JSON
+    line with its error), exit status 1."""
+    import json
+
+    root = units_library
+    alone = {scene: json.loads(identify_json(capsys, root, scene)[1]) for scene in ("scene", "scene_with_backgrounds")}
+    code = cli_main(["identify", "--scene", str(root / "scene"), str(root / "missing"), str(root / "scene_with_backgrounds"),
+                     "--objects", "prim_box", "prim_cylinder", "--artifacts", str(root / "artifacts"), "--json",
+                     "identify.weights=[1,1,1]", "select.N=200", "identify.screen.N=200", "identify.workers=1"])
+    out, err = capsys.readouterr()
+    assert code == 1
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert [line["scene"] for line in lines] == [str(root / s) for s in ("scene", "missing", "scene_with_backgrounds")]
+    assert set(lines[1]) == {"scene", "error"} and "missing" in lines[1]["error"]
+    strip = lambda result: [{k: o[k] for k in ("name", "pose", "probability")} for o in result["objects"]]
+    assert strip(lines[0]) == strip(alone["scene"]) and strip(lines[2]) == strip(alone["scene_with_backgrounds"])
+    assert err.splitlines()[-1] == "error: 1 of 3 scenes failed"

@@ -180,8 +180,8 @@ def test_missing_patch_calibration_names_the_stage_that_makes_it(capsys, scene, 
 def test_from_scenes_is_refused_where_one_scene_is_read(capsys, scene, artifacts):
     code, _, err = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts), "--background", "from-scenes")
     assert code == 2 and err.startswith("error: --background from-scenes estimates the no-contact images from the "
-                                        "images of several scenes, which `tactile6d estimate` reads in one call; "
-                                        "`tactile6d inspect` reads one scene")
+                                        "images of several scenes, which `tactile6d estimate` and `tactile6d "
+                                        "identify` read in one call; `tactile6d inspect` reads one scene")
 
 
 @pytest.mark.slow

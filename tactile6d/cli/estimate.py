@@ -391,8 +391,8 @@ def one_scene_background_option(words: list[str] | None, command: str) -> np.nda
     needs the images of many, is an InputError that says where it works."""
     if words == [FROM_SCENES]:
         raise InputError(f"--background {FROM_SCENES} estimates the no-contact images from the images of several "
-                         f"scenes, which `tactile6d estimate` reads in one call; `tactile6d {command}` reads one "
-                         "scene: pass the sensors' no-contact image files")
+                         f"scenes, which `tactile6d estimate` and `tactile6d identify` read in one call; `tactile6d "
+                         f"{command}` reads one scene: pass the sensors' no-contact image files")
     return read_background_images(words) if words else None
 
 

@@ -1,18 +1,22 @@
 """``tactile6d identify``: which object of a library touches the sensors, and its pose.
 
-One scene folder in the paper's triplet layout (``poses_sensors.txt`` + ``Image_heatmap_<i>.png``, as
-for ``tactile6d estimate``) against the objects given with ``--objects`` (default: every object with
+Scene folders in the paper's triplet layout (``poses_sensors.txt`` + ``Image_heatmap_<i>.png``, as for
+``tactile6d estimate``: ``--scene DIR [DIR ...]`` or ``--scenes-root DIR``), each against the objects given with
+``--objects`` (default: every object with
 artifacts in the artifacts directory, every distractor with artifacts in its ``distractors/``
 folder, ``identify.distractors``, and every one of your own objects with artifacts in ``own/``). The
 images are read once; every object is estimated on them and scored with the weights the
 ``calibrate_identify`` stage fitted on the calibration scenes (``identify.calibration_scenes``;
 ``tactile6d.estimation.identifier``). Output: one line per object, most probable first, with its probability,
 score and best pose (``x y z ax ay az angle``, world frame), objects that match nothing last; then the
-time per step. ``--json``: one JSON object (``Identification.to_dict``). Errors: one ``error:`` line and
-exit status 2; objects without artifacts are all named in that one line. The sensors' no-contact images:
-``--background`` (one file for every sensor, or one per sensor in sensor order), else the scene folder's
-``background_<i>.png`` when it holds them (said on stderr), else ``render.background``; as for
-``tactile6d estimate``, one sensor only gives a ``warning:`` line. ``--sensor-offsets FILE`` corrects the sensor
+time per step; several scenes each headed by ``# <folder>``. ``--json``: one JSON object per scene
+(``Identification.to_dict``). The library's artifacts are loaded once for all the scenes of a call, which is
+most of a single scene's time. Errors: one ``error:`` line and exit status 2; objects without artifacts are all
+named in that one line; with several scenes a scene that fails prints its line (and with ``--json`` a line with
+its ``error``), the others still print, and the exit status is 1. The sensors' no-contact images:
+``--background`` (one file for every sensor, or one per sensor in sensor order; ``from-scenes`` estimates them
+from the scenes' images), else the scene folder's ``background_<i>.png`` when it holds them (said on stderr),
+else ``render.background``; as for ``tactile6d estimate``, one sensor only gives a ``warning:`` line. ``--sensor-offsets FILE`` corrects the sensor
 poses by the hand's offsets (``tactile6d calibrate-sensors``) first.
 
 Config overrides (``key=value``) pass through, e.g. ``identify.screen.N=1000`` or
@@ -29,12 +33,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from tactile6d.cli import description
-from tactile6d.cli.estimate import (add_sensor_offsets_argument, is_override, one_scene_background_option,
-                                    read_sensor_offsets, scene_backgrounds, split_overrides, use_solver_devices,
-                                    warnings_to_lines)
+from tactile6d.cli.estimate import (FROM_SCENES, add_sensor_offsets_argument, background_option, collect_scenes,
+                                    error_line, is_override, read_sensor_offsets, scene_backgrounds, split_overrides,
+                                    use_solver_devices, warnings_to_lines)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
-from tactile6d.core.errors import InputError
+from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
 from tactile6d.data.hdf5 import read_scene_dir
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
@@ -47,21 +51,28 @@ if TYPE_CHECKING:
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="tactile6d identify", description=description(__doc__),
-        usage="tactile6d identify --scene DIR [--objects NAME ...] [options] [key=value ...]")
-    parser.add_argument("--scene", required=True, metavar="DIR",
-                        help="scene folder: poses_sensors.txt + Image_heatmap_<i>.png")
+        usage="tactile6d identify (--scene DIR [DIR ...] | --scenes-root DIR) [--objects NAME ...] [options] "
+              "[key=value ...]")
+    parser.add_argument("--scene", nargs="+", action="extend", default=[], metavar="DIR",
+                        help="scene folder(s): poses_sensors.txt + Image_heatmap_<i>.png")
+    parser.add_argument("--scenes-root", default=None, metavar="DIR",
+                        help="every folder under DIR holding a poses_sensors.txt is a scene")
     parser.add_argument("--objects", nargs="+", default=None, metavar="NAME",
                         help="the candidate objects (default: every object with artifacts)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--json", action="store_true", help="print one JSON object per scene")
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
                         help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
-                             "per sensor in sensor order; default: the scene's background_<i>.png, else "
-                             "render.background")
+                             f"per sensor in sensor order; '{FROM_SCENES}': each sensor's estimated from its images "
+                             "in the scenes given; default: the scene's background_<i>.png, else render.background")
     add_sensor_offsets_argument(parser, "poses_sensors.txt's poses")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
-    args.background, args.overrides = split_overrides(args.background, list(args.overrides))
+    moved = [word for word in args.scene if is_override(word)]  # ``--scene A B key=value``: nargs='+' is greedy
+    args.scene = [word for word in args.scene if not is_override(word)]
+    args.background, args.overrides = split_overrides(args.background, moved + list(args.overrides))
+    if not args.scene and args.scenes_root is None:
+        parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
     if args.objects:  # ``--objects A B select.N=5`` puts the override among the names
         args.overrides = [w for w in args.objects if is_override(w)] + list(args.overrides)
         args.objects = [w for w in args.objects if not is_override(w)]
@@ -102,26 +113,54 @@ def main(argv: list[str]) -> int:
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     known = KnownObjects(artifacts, cfg)
     objects, distractors, own = library_of(args.objects, known)
-    T_world_sensors, images = read_scene_dir(args.scene)
+    scenes = collect_scenes(args)
     offsets = read_sensor_offsets(args)
+    background = background_option(args.background, scenes)
+    failed = 0
+    with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors,
+                                   own=own) as identifier:
+        for k, scene in enumerate(scenes):
+            try:
+                result = identify_scene(identifier, scene, offsets, background is not None)
+            except ConfigError:
+                raise  # the same for every scene
+            except Tactile6dError as exc:
+                if len(scenes) == 1:
+                    raise
+                failed += 1
+                print(error_line(scene, exc), file=sys.stderr)
+                if args.json:
+                    print(json.dumps({"scene": str(scene), "error": " ".join(str(exc).split())}))
+                continue
+            if args.json:
+                print(json.dumps({"scene": str(scene), **result.to_dict()}))
+            elif len(scenes) == 1:
+                print(as_text(result))
+            else:
+                print(("\n" if k else "") + f"# {scene}\n" + as_text(result))
+    if failed:
+        print(f"error: {failed} of {len(scenes)} scenes failed", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def identify_scene(identifier, scene: Path, offsets, background_given: bool) -> Identification:
+    """One scene folder identified: its poses corrected by the hand's ``offsets`` (or None), its own no-contact
+    images used unless ``--background`` was given; notes and warnings (each said once) on stderr."""
+    T_world_sensors, images = read_scene_dir(scene)
     if offsets is not None:
         from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
 
         T_world_sensors = apply_sensor_offsets(T_world_sensors, offsets)
-    background = one_scene_background_option(args.background, "identify")
-    backgrounds, note = scene_backgrounds(Path(args.scene), len(T_world_sensors), background is not None)
+    backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), background_given)
     if note:
         print(note, file=sys.stderr)
-    with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors,
-                                   own=own) as identifier:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", UnderdeterminedPoseWarning)
-            warnings.simplefilter("always", LightWarning)
-            result = identifier.identify(T_world_sensors, images, backgrounds)
-    for line in dict.fromkeys(warnings_to_lines(Path(args.scene), caught)):  # each object's estimate may say it
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnderdeterminedPoseWarning)
+        warnings.simplefilter("always", LightWarning)
+        result = identifier.identify(T_world_sensors, images, backgrounds)
+    for line in dict.fromkeys(warnings_to_lines(scene, caught)):  # each object's estimate may say it
         print(line, file=sys.stderr)
-    print(json.dumps({"scene": str(args.scene), **result.to_dict()}) if args.json else as_text(result))
-    return 0
+    return result
 
 
 if __name__ == "__main__":
