@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile6d.cli import description
 import tactile6d
+from tactile6d.cli import description
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.data.third_party import DataStore, group_names

@@ -2,9 +2,9 @@
 
 Scene folders in the paper's triplet layout (``poses_sensors.txt`` + ``Image_heatmap_<i>.png``, as for
 ``tactile6d estimate``: ``--scene DIR [DIR ...]`` or ``--scenes-root DIR``), each against the objects given with
-``--objects`` (default: every object with
-artifacts in the artifacts directory, every distractor with artifacts in its ``distractors/``
-folder, ``identify.distractors``, and every one of your own objects with artifacts in ``own/``). The
+``--objects`` (default: every object with artifacts in the artifacts directory, every distractor with artifacts
+in its ``distractors/`` folder, ``identify.distractors``, and every one of your own objects with artifacts in
+``own/``). The
 images are read once; every object is estimated on them and scored with the weights the
 ``calibrate_identify`` stage fitted on the calibration scenes (``identify.calibration_scenes``;
 ``tactile6d.estimation.identifier``). Output: one line per object, most probable first, with its probability,
@@ -16,8 +16,8 @@ named in that one line; with several scenes a scene that fails prints its line (
 its ``error``), the others still print, and the exit status is 1. The sensors' no-contact images:
 ``--background`` (one file for every sensor, or one per sensor in sensor order; ``from-scenes`` estimates them
 from the scenes' images), else the scene folder's ``background_<i>.png`` when it holds them (said on stderr),
-else ``render.background``; as for ``tactile6d estimate``, one sensor only gives a ``warning:`` line. ``--sensor-offsets FILE`` corrects the sensor
-poses by the hand's offsets (``tactile6d calibrate-sensors``) first.
+else ``render.background``; as for ``tactile6d estimate``, one sensor only gives a ``warning:`` line.
+``--sensor-offsets FILE`` corrects the sensor poses by the hand's offsets (``tactile6d calibrate-sensors``) first.
 
 Config overrides (``key=value``) pass through, e.g. ``identify.screen.N=1000`` or
 ``identify.weights=[1,1,10]``.

@@ -22,7 +22,8 @@ before the fingers close). When a no-contact image looked like another unit's, a
 calibrate-sensors``) before the tracker sees them.
 
 Output: one line per frame on stdout: ``<frame> <stamp> <mode> x y z ax ay az angle <confidence>`` (mode
-``redetect``, ``update`` or ``hold``; stamp and confidence ``-`` when unknown), or with ``--json`` one
+``redetect``, ``update`` or ``hold``; stamp the input's seconds, else frame number / ``--fps``; confidence ``-``
+when unknown), or with ``--json`` one
 JSON object per frame (pose as a 4x4 matrix, mode, the re-detection's reason, confidence, whether it is
 ambiguous and the rival poses that make it so, which sensors touch, the fit terms, seconds). ``--bop FILE``
 also writes a BOP result CSV (``scene_id`` from ``--scene-id``, ``im_id`` the frame, ``obj_id`` the object's

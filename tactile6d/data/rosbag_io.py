@@ -680,7 +680,8 @@ def write_pose_bag(
     return path
 
 
-def _write_pose_messages(path: Path, stamps: np.ndarray, T: np.ndarray, frame_id: str, topic: str, storage: str) -> None:
+def _write_pose_messages(path: Path, stamps: np.ndarray, T: np.ndarray, frame_id: str, topic: str,
+                         storage: str) -> None:
     """``write_pose_bag``'s messages into a new bag folder ``path``."""
     types = (typestore := _typestore()).types
     with _new_writer(path, storage) as writer:
