@@ -601,3 +601,20 @@ def test_several_scenes_in_one_call_each_give_a_line_or_an_error(capsys, units_l
     strip = lambda result: [{k: o[k] for k in ("name", "pose", "probability")} for o in result["objects"]]
     assert strip(lines[0]) == strip(alone["scene"]) and strip(lines[2]) == strip(alone["scene_with_backgrounds"])
     assert err.splitlines()[-1] == "error: 1 of 3 scenes failed"
+
+
+@pytest.mark.slow
+def test_only_the_object_ranked_first_may_warn_that_it_presses_into_a_sensor(capsys, units_library, monkeypatch):
+    """Wrong objects' best poses may press deep into a sensor; the warning is about the answer, so it comes once,
+    for the object ranked first (forced here by a threshold below zero: every estimate would warn)."""
+    from tactile6d.perception import inputs
+
+    monkeypatch.setattr(inputs, "PENETRATION_WARNING", -1.0)
+    code, out, err = identify_json(capsys, units_library, "scene", "--background",
+                                   *[str(units_library / f"unit_{i}.png") for i in range(3)])
+    assert code == 0, err
+    import json
+
+    first = json.loads(out)["objects"][0]["name"]
+    pressed = [line for line in err.splitlines() if "the best pose presses" in line]
+    assert len(pressed) == 1 and first in ("prim_box", "prim_cylinder"), err

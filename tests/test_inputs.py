@@ -304,12 +304,17 @@ def test_sensors_too_far_apart_for_the_object_are_named_with_the_units_hint():
                                          r"object spans at most 0.12 m: .*these look like millimetres"):
         inputs.check_sensors_within_reach(in_mm, touching, 0.12, 0.0045)
     far = T.copy()
-    far[2, :3, 3] += [0.0, 0.5, 0.0]  # half a metre off: not a units mix-up
+    far[2, :3, 3] += [0.0, 500.0, 0.0]  # 500 m off: not even millimetres
     with pytest.raises(InputError, match=r"sensors 0 and 2 .* no pose can touch both; check the sensor poses"):
         inputs.check_sensors_within_reach(far, touching, 0.12, 0.0045)
     inputs.check_sensors_within_reach(far, np.array([True, True, False]), 0.12, 0.0045)  # a lifted finger
-    # The bound: the object's extent, both gels' reach, the tolerance and the margin, no tighter.
-    pair = T[:2].copy()
+    # Out of this object's reach but within a hand's span: not an input error (the selection finds no match,
+    # and identification goes on to the next object).
+    near = T.copy()
+    near[2, :3, 3] += [0.0, 0.5, 0.0]
+    inputs.check_sensors_within_reach(near, touching, 0.12, 0.0045)
+    # Beyond a hand's span, the bound is the object's extent, both gels' reach, the tolerance and the margin.
+    pair = in_mm[:2].copy()
     gap = float(np.linalg.norm(np.diff(contact_points_of(pair), axis=0)))
     extent = gap - 2 * inputs.GEL_REACH - 0.0045 - inputs.REACH_MARGIN
     inputs.check_sensors_within_reach(pair, touching[:2], extent + 1e-6, 0.0045)

@@ -386,9 +386,9 @@ class Estimator:
         image's light (``align_light``; a ``photometric.LightWarning`` where that light cannot be trusted),
         and only then read. Sensors whose images show no contact while others' do are left out of the
         selection and the fit, and still checked in the ranking (``Contacts.touching``; a
-        ``contacts.UntouchedSensorWarning``). Touching sensors too far apart for the object to touch them all
-        are an InputError (``inputs.check_sensors_within_reach``: poses in millimetres, say), and a best pose
-        that presses deep into a sensor gets an ``inputs.PenetrationWarning`` (a pose given inverted, say).
+        ``contacts.UntouchedSensorWarning``). Touching sensors a metre apart and out of the object's reach are an
+        InputError (``inputs.check_sensors_within_reach``: poses in millimetres, say), and a best pose that
+        presses deep into a sensor gets an ``inputs.PenetrationWarning`` (a pose given inverted, say).
         """
         start = time.perf_counter()
         T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)  # the one check

@@ -25,6 +25,7 @@ import dataclasses
 import json
 import time
 import uuid
+import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +43,7 @@ from tactile6d.estimation.estimator import Estimate, Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.perception import encode as encode_step
 from tactile6d.perception.contacts import Contacts
-from tactile6d.perception.inputs import check_sensor_poses
+from tactile6d.perception.inputs import PenetrationWarning, check_sensor_poses, warn_if_pressed_in
 from tactile6d.runtime.executor import Executor, LocalExecutor, executor_from_config, process_cache
 
 
@@ -369,6 +370,10 @@ class Identifier:
                 refined = True
         seconds["refine"] = time.perf_counter() - t0
         seconds["total"] = time.perf_counter() - start
+        winner = found[order[0]]
+        if winner.matched and winner.estimate is not None:
+            warn_if_pressed_in(winner.estimate.penetrations[0], self.full[winner.name].settings.sensors.contact_sigma,
+                               stacklevel=3)
         ranked = tuple(RankedObject(found[i].name, float(probabilities[i]), float(scores[i]), found[i]) for i in order)
         return Identification(ranked, refined, seconds)
 
@@ -419,9 +424,12 @@ class Identifier:
 
 def estimate_encoded(est: Estimator, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Estimate:
     """``est``'s estimate from a scene's shared encoding (its own angles from the shared latents), for checked
-    sensor poses (L, 4, 4)."""
+    sensor poses (L, 4, 4). A wrong object's best pose may well press into a sensor: the ``PenetrationWarning`` is
+    the identification's to give, for the object it ranks first (``Identifier.identify``)."""
     angles = None if encoding.latents is None else np.asarray(est.encoder.angles(encoding.latents), np.float64)
-    return est._estimate_checked(T_world_sensors, encoding.contacts, angles)  # the identifier checked the poses
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PenetrationWarning)
+        return est._estimate_checked(T_world_sensors, encoding.contacts, angles)  # the identifier checked the poses
 
 
 @dataclass(frozen=True)

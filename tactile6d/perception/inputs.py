@@ -4,8 +4,8 @@ no-contact images (backgrounds).
 Each check returns the input as the array the steps take, or raises InputError naming the first
 problem, so that a robot's mistake is reported before any work is done. Beyond shapes and types, inputs
 that are plausibly wrong are refused too: a grey image, an image whose red and blue look swapped against
-its no-contact image (OpenCV's BGR order), sensors whose bodies overlap, touching sensors farther apart
-than the object is long (poses in millimetres); one sensor only is accepted with a warning. They run once per
+its no-contact image (OpenCV's BGR order), sensors whose bodies overlap, touching sensors a metre apart
+(poses in millimetres); one sensor only is accepted with a warning. They run once per
 estimate and cost well under a millisecond per sensor. After the estimate, a best pose that presses deep into a
 sensor is warned about: no pose fits the sensor poses as given (an inverted pose, a wrong frame).
 """
@@ -273,26 +273,31 @@ GEL_REACH = float(np.linalg.norm([GEL_CENTER[0] - CONTACT_POINT[0], GEL_WIDTH / 
 REACH_MARGIN = 0.01
 
 
+# Touching sensors this far apart (m) are a mistake in the poses, whatever the object: no hand's fingertips are a
+# metre apart. Closer but out of an object's reach, they say that the object is not this one, which the selection
+# finds (``NoMatch``: identification moves on to the next object).
+HAND_SPAN = 1.0
+
+
 def check_sensors_within_reach(T_world_sensors: np.ndarray, touching: np.ndarray, object_extent: float,
                                pose_tolerance: float) -> None:
-    """InputError naming the first two touching sensors whose landmarks are too far apart for one object to
-    touch both: farther than ``object_extent`` (m, at least the object's diameter, e.g. its bounding box's
-    diagonal) plus each gel's reach (``GEL_REACH``), ``pose_tolerance`` (m, ``pair_distance_tolerance``) and
-    ``REACH_MARGIN``. T_world_sensors (L, 4, 4); touching (L,) bool (``Contacts.touching``: a lifted finger may
-    be anywhere). When the sensors are a metre or more apart and would be within reach with their translations
-    read as millimetres, the error says so."""
+    """InputError naming the first two touching sensors that are ``HAND_SPAN`` or more apart and too far apart for
+    one object to touch both: farther than ``object_extent`` (m, at least the object's diameter, e.g. its bounding
+    box's diagonal) plus each gel's reach (``GEL_REACH``), ``pose_tolerance`` (m, ``pair_distance_tolerance``) and
+    ``REACH_MARGIN``. When they would be within reach read as millimetres, it says so. T_world_sensors (L, 4, 4);
+    touching (L,) bool (``Contacts.touching``: a lifted finger may be anywhere)."""
     points = contact_points(np.asarray(T_world_sensors, dtype=np.float64))
     on = np.flatnonzero(np.asarray(touching, dtype=bool))
     allowed = float(object_extent) + 2.0 * GEL_REACH + float(pose_tolerance) + REACH_MARGIN
     for b in on:
         for a in on[on < b]:
             distance = float(np.linalg.norm(points[b] - points[a]))
-            if distance > allowed:
-                in_mm = distance >= 1.0 and distance / 1000.0 <= allowed  # no hand's fingertips are a metre apart
-                hint = ("; sensor poses are in metres, and these look like millimetres: divide the translations by "
-                        "1000" if in_mm else "; check the sensor poses and their order")
-                raise InputError(f"sensors {a} and {b} both touch, but their contacts are {distance:.3g} m apart and "
-                                 f"the object spans at most {object_extent:.3g} m: no pose can touch both{hint}")
+            if distance <= max(allowed, HAND_SPAN):
+                continue
+            hint = ("sensor poses are in metres, and these look like millimetres: divide the translations by 1000"
+                    if distance / 1000.0 <= allowed else "check the sensor poses and their order")
+            raise InputError(f"sensors {a} and {b} both touch, but their contacts are {distance:.3g} m apart and the "
+                             f"object spans at most {object_extent:.3g} m: no pose can touch both; {hint}")
 
 
 class PenetrationWarning(UserWarning):
