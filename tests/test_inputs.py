@@ -12,7 +12,7 @@ from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import is_rotation, make_pose, random_rotations, rotation_angle, text_to_poses
 from tactile6d.core.settings import SensorSettings
-from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
+from tactile6d.core.sensor import BOX_CENTER, BOX_HALF_EXTENTS, bodies_overlap, contact_points, sensor_poses_touching
 from tactile6d.data.hdf5 import read_scene_dir, read_tactile_image
 from tactile6d.perception import inputs
 from tactile6d.perception.encode import load_background
@@ -315,17 +315,11 @@ def test_sensors_too_far_apart_for_the_object_are_named_with_the_units_hint():
     inputs.check_sensors_within_reach(near, touching, 0.12, 0.0045)
     # Beyond a hand's span, the bound is the object's extent, both gels' reach, the tolerance and the margin.
     pair = in_mm[:2].copy()
-    gap = float(np.linalg.norm(np.diff(contact_points_of(pair), axis=0)))
+    gap = float(np.linalg.norm(np.diff(contact_points(pair), axis=0)))
     extent = gap - 2 * inputs.GEL_REACH - 0.0045 - inputs.REACH_MARGIN
     inputs.check_sensors_within_reach(pair, touching[:2], extent + 1e-6, 0.0045)
     with pytest.raises(InputError):
         inputs.check_sensors_within_reach(pair, touching[:2], extent - 1e-6, 0.0045)
-
-
-def contact_points_of(T):
-    from tactile6d.core.sensor import contact_points
-
-    return contact_points(T)
 
 
 def test_a_best_pose_that_presses_deep_into_a_sensor_is_warned_about():
