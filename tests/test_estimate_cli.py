@@ -561,6 +561,7 @@ def test_no_contact_images_estimated_from_the_scenes(capsys, artifacts, scene, t
     assert "--background from-scenes needs at least 5 scenes" in err
 
 
+@pytest.mark.slow
 def test_a_best_pose_pressed_into_a_sensor_is_a_warning_line(capsys, artifacts, scene, monkeypatch):
     """The estimator checks its best pose's penetration (inputs.warn_if_pressed_in) and the CLI prints the warning;
     forced here by a threshold below zero, since the box's true pose presses into no sensor."""
