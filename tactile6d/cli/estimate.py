@@ -444,6 +444,12 @@ def error_line(scene: Path, exc: Tactile6dError) -> str:
     return f"error: {message}" if str(scene) in message else f"error: {scene}: {message}"
 
 
+def error_json(scene: Path, exc: Tactile6dError) -> str:
+    """A failed scene's line of JSON output: ``{"scene": ..., "error": ...}``, so that a reader of the lines can
+    line the results up with the scenes."""
+    return json.dumps({"scene": str(scene), "error": " ".join(str(exc).split())})
+
+
 def write(text: str, stream) -> None:
     """Print past the progress bar (tqdm clears and redraws it) and flush, so that a reader of a pipe
     gets each result as soon as it is ready."""
@@ -472,8 +478,8 @@ def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: Estimato
             except Tactile6dError as exc:
                 failed += 1
                 write(error_line(scene, exc), sys.stderr)
-                if args.json:  # one line per scene, so that a reader can line the results up with the scenes
-                    write(json.dumps({"scene": str(scene), "error": " ".join(str(exc).split())}), sys.stdout)
+                if args.json:
+                    write(error_json(scene, exc), sys.stdout)
             else:
                 if args.json:
                     write(as_json(scene, name, result, cfg, load_seconds, args.suggest_touch, touch), sys.stdout)

@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING
 
 from tactile6d.cli import description
 from tactile6d.cli.estimate import (FROM_SCENES, add_sensor_offsets_argument, background_option, collect_scenes,
-                                    error_line, is_override, read_sensor_offsets, scene_backgrounds, split_overrides,
-                                    use_solver_devices, warnings_to_lines)
+                                    error_json, error_line, is_override, read_sensor_offsets, scene_backgrounds,
+                                    split_overrides, use_solver_devices, warnings_to_lines)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
@@ -130,7 +130,7 @@ def main(argv: list[str]) -> int:
                 failed += 1
                 print(error_line(scene, exc), file=sys.stderr)
                 if args.json:
-                    print(json.dumps({"scene": str(scene), "error": " ".join(str(exc).split())}))
+                    print(error_json(scene, exc))
                 continue
             if args.json:
                 print(json.dumps({"scene": str(scene), **result.to_dict()}))

@@ -245,16 +245,17 @@ class _Edge:
         self.stamps = np.array([item[0] for item in items])
         self.T = np.stack([item[2] for item in items])
 
+    def _used(self, stamp: float) -> int:
+        """The index of the latest transform with a stamp <= ``stamp``; of the earliest one when all are later."""
+        return max(int(np.searchsorted(self.stamps, stamp, side="right")) - 1, 0)
+
     def at(self, stamp: float) -> np.ndarray:
-        """The latest transform with a stamp <= ``stamp``; the earliest one when all are later."""
-        index = int(np.searchsorted(self.stamps, stamp, side="right")) - 1
-        return self.T[max(index, 0)]
+        """The transform in force at ``stamp`` (``_used``)."""
+        return self.T[self._used(stamp)]
 
     def age(self, stamp: float) -> float:
-        """How far (seconds) the transform ``at`` gives for ``stamp`` is from it: ``stamp`` minus its stamp, or its
-        stamp minus ``stamp`` when all are later; 0 for a static transform."""
-        index = int(np.searchsorted(self.stamps, stamp, side="right")) - 1
-        used = float(self.stamps[max(index, 0)])
+        """How far (seconds) the transform ``at`` gives for ``stamp`` is from it; 0 for a static transform."""
+        used = float(self.stamps[self._used(stamp)])
         return 0.0 if used == -math.inf else abs(stamp - used)
 
 
@@ -343,14 +344,26 @@ SYNC_HORIZON = 1.0
 REORDER_WINDOW = 0.1
 
 
+class SensorTally:
+    """Frames skipped for each sensor's sake: ``count[k]`` of them, the first at stamp ``first[k]`` (None: none)."""
+
+    def __init__(self, n_sensors: int):
+        self.count = [0] * n_sensors
+        self.first: list[float | None] = [None] * n_sensors
+
+    def add(self, k: int, stamp: float) -> None:
+        self.count[k] += 1
+        if self.first[k] is None:
+            self.first[k] = stamp
+
+
 class SyncCounts:
-    """What ``_synchronise`` left out: ``missing[k]`` frames where topic k had no message within the tolerance
-    (k >= 1), ``first_missing[k]`` the stamp of the first such frame, and ``late`` messages of the first topic that
-    came after a later-stamped one had been emitted (out of order)."""
+    """What ``_synchronise`` left out: ``missing``, the frames where topic k (k >= 1) had no message within the
+    tolerance (``SensorTally``), and ``late`` messages of the first topic that came after a later-stamped one had
+    been emitted (out of order)."""
 
     def __init__(self, n_topics: int):
-        self.missing = [0] * n_topics
-        self.first_missing: list[float | None] = [None] * n_topics
+        self.missing = SensorTally(n_topics)
         self.late = 0
 
 
@@ -378,9 +391,7 @@ def _synchronise(messages: Iterable[tuple[int, float, object]], n_topics: int, t
         for k, buffer in enumerate(buffers[1:], start=1):
             best = min(buffer, key=lambda item: abs(item[0] - stamp), default=None)
             if best is None or abs(best[0] - stamp) > tolerance:
-                counts.missing[k] += 1
-                if counts.first_missing[k] is None:
-                    counts.first_missing[k] = stamp
+                counts.missing.add(k, stamp)
                 chosen = None
             elif chosen is not None:
                 chosen.append(best[1])
@@ -486,8 +497,7 @@ def _iter_bag_frames(path, image_topics, typestore, tolerance, fixed_poses, edge
                      tf_tolerance, raw_camera_frames) -> Iterator[BagFrame]:
     index = {topic: k for k, topic in enumerate(image_topics)}
     counts = SyncCounts(len(image_topics))
-    stale = [0] * len(image_topics)
-    first_stale: list[float | None] = [None] * len(image_topics)
+    stale = SensorTally(len(image_topics))  # frames whose TF chain for the sensor was too old
     read = total = 0
     with _open_reader(path) as reader:
         conns = [c for topic in image_topics for c in reader.topics[topic].connections]
@@ -506,20 +516,20 @@ def _iter_bag_frames(path, image_topics, typestore, tolerance, fixed_poses, edge
                 if max(ages) > tf_tolerance:
                     for k, age in enumerate(ages):
                         if age > tf_tolerance:
-                            stale[k] += 1
-                            first_stale[k] = stamp if first_stale[k] is None else first_stale[k]
+                            stale.add(k, stamp)
                     continue
             images = np.stack([image_from_message(msg, image_topics[k], raw_camera_frames)
                                for k, msg in enumerate(chosen)])
             T = fixed_poses.copy() if fixed_poses is not None else _tf_poses_at(plans, edges, stamp)
             read += 1
             yield BagFrame(stamp, T, images)
+    missing = counts.missing
     reasons = [f"sensor {k} ({image_topics[k]}) had no image within {tolerance} s of the first topic's in "
-               f"{counts.missing[k]}, from {counts.first_missing[k]:.3f} s on"
-               for k in range(1, len(image_topics)) if counts.missing[k]]
+               f"{missing.count[k]}, from {missing.first[k]:.3f} s on"
+               for k in range(1, len(image_topics)) if missing.count[k]]
     reasons += [f"sensor {k}'s TF chain (frame {sensor_frames[k]!r}) was more than {tf_tolerance} s from the frame's "
-                f"stamp in {stale[k]}, from {first_stale[k]:.3f} s on (TF stopped or not yet published)"
-                for k in range(len(image_topics)) if stale[k]]
+                f"stamp in {stale.count[k]}, from {stale.first[k]:.3f} s on (TF stopped or not yet published)"
+                for k in range(len(image_topics)) if stale.count[k]]
     if counts.late:
         reasons.append(f"{counts.late} images of the first topic ({image_topics[0]}) came out of order, after a "
                        "later-stamped one, and were left out")
