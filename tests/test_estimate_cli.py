@@ -575,3 +575,41 @@ def test_a_best_pose_pressed_into_a_sensor_is_a_warning_line(capsys, artifacts, 
                          *BASELINE)
     assert code == 0 and err.startswith(f"warning: {scene}: the best pose presses ")
     assert "T_world_sensor (the sensor's frame in the world, not its inverse)" in err
+
+
+# --- --plot ------------------------------------------------------------------------------------------
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_plot_writes_one_scenes_figure_to_the_file_given(capsys, artifacts, scene, tmp_path):
+    figure = tmp_path / "figs" / "estimate.png"
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         "--plot", str(figure), *BASELINE)
+    assert code == 0, err
+    assert figure.read_bytes()[:8] == PNG_SIGNATURE
+    # a folder for one scene, or a suffix no writer takes, ends the command with one error line
+    code, _, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                       "--plot", str(tmp_path / "figs"), *BASELINE)
+    assert code == 2 and "is a folder; with one scene it is the figure's file" in err
+    code, out, err = run(capsys, "--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts),
+                         "--plot", str(tmp_path / "estimate.nope"), *BASELINE)
+    assert code == 2 and err.startswith(f"error: --plot {tmp_path / 'estimate.nope'}: no figure is written as .nope")
+    assert not out  # said before estimating
+
+
+@pytest.mark.slow
+def test_plot_writes_a_figure_per_scene_into_the_folder_given(capsys, artifacts, scene, tmp_path):
+    folders = [copy_scene(scene, tmp_path / "one" / "triplet_0"), copy_scene(scene, tmp_path / "two" / "triplet_0"),
+               copy_scene(scene, tmp_path / "x" / "one" / "triplet_0")]
+    code, _, err = run(capsys, "--object", "prim_box", "--artifacts", str(artifacts), "--plot",
+                       str(tmp_path / "figures"), "--scene", *map(str, folders), *BASELINE)
+    assert code == 0, err
+    # named <parent>_<scene>; the third shares the first's name, so it gets a number
+    assert sorted(p.name for p in (tmp_path / "figures").iterdir()) == [
+        "one_triplet_0.png", "one_triplet_0_2.png", "two_triplet_0.png"]
+    (tmp_path / "a_file").write_text("")
+    code, _, err = run(capsys, "--object", "prim_box", "--artifacts", str(artifacts), "--plot",
+                       str(tmp_path / "a_file"), "--scene", *map(str, folders), *BASELINE)
+    assert code == 2 and "is a file; with several scenes it is the folder" in err

@@ -40,6 +40,12 @@ flattest spot's, which pins the pose better without telling the poses apart); af
 ``disambiguation.choose`` re-ranks the poses. A progress bar goes to stderr when there are more than a few
 scenes and stderr is a terminal.
 
+``--plot PATH`` draws each estimate (``tactile6d.evaluation.estimate_figure``): the object at the best pose among
+the sensors, and per sensor its image with the press read from it (white outline) and the press the best pose
+makes (orange), with their depths and mask IoU side by side. With one ``--scene``, PATH is the figure's file (its
+suffix picks the format: PNG, PDF, SVG, JPG); with several scenes, a folder that gets one PNG per scene named
+``<parent folder>_<scene folder>.png`` (``004_sugar_box_triplet_0.png`` in the paper's layout).
+
 Errors: with one ``--scene``, any error ends the command with one ``error:`` line and exit status 2,
 as for a bad option, an unknown object or a bad config override in every case. With several scenes,
 a scene that fails (unreadable folder, bad pose line, no matching tuple, missing artifacts of its
@@ -67,7 +73,7 @@ import numpy as np
 from tactile6d.cli import description
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
-from tactile6d.core.errors import ConfigError, InputError, NoMatch, Tactile6dError
+from tactile6d.core.errors import ConfigError, DataError, InputError, NoMatch, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
 from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir
 from tactile6d.perception import photometric
@@ -110,6 +116,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--suggest-touch", action="store_true",
                         help="when the estimate is ambiguous, also say where one more touch would tell its poses "
                              "apart (docs/confidence.md)")
+    parser.add_argument("--plot", type=Path, default=None, metavar="PATH",
+                        help="draw each estimate: the object among the sensors and each gel's press read against "
+                             "the best pose's; one scene: the figure's file (PNG, PDF, SVG or JPG); several: a "
+                             "folder of <parent>_<scene>.png")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
@@ -215,6 +225,7 @@ class EstimatorCache:
         self.known, self.cfg, self.background, self.offsets = known, cfg, background, offsets
         self._loaded: dict[str, tuple[Estimator | Tactile6dError, float]] = {}
         self._reported: set[str] = set()
+        self._meshes: dict = {}
 
     def load(self, name: str) -> Estimator:
         """The object's Estimator, loading it if not yet done; the Tactile6dError of a failed load."""
@@ -235,6 +246,18 @@ class EstimatorCache:
         if isinstance(loaded, Tactile6dError):
             raise loaded
         return loaded
+
+    def mesh(self, name: str):
+        """The object's mesh (``--plot`` draws its presses): the estimator's own when it renders and compares,
+        else read from the object's artifacts once."""
+        estimator = self.load(name)
+        if estimator.mesh is not None:
+            return estimator.mesh
+        if name not in self._meshes:
+            from tactile6d.data.object_artifacts import load_mesh
+
+            self._meshes[name] = load_mesh(self.known.get(name).objects_dir, name)
+        return self._meshes[name]
 
     def sensor_poses(self, T_world_sensors: np.ndarray) -> np.ndarray:
         """The sensor poses as read, corrected by the hand's offsets when there are any."""
@@ -299,10 +322,12 @@ def confidence_lines(result: Estimate) -> list[str]:
     return lines
 
 
-def estimate_scene(scene: Path, name: str, cache: EstimatorCache, suggest_touch: bool = False):
+def estimate_scene(scene: Path, name: str, cache: EstimatorCache, suggest_touch: bool = False,
+                   plot: Path | None = None):
     """One scene's estimate, the seconds spent loading its object's artifacts for it and, with ``suggest_touch``
     and an ambiguous estimate, where one more touch would tell its poses apart (``Touch``; else None); its notes
-    and warnings (``scene_backgrounds``, ``warnings_to_lines``) go to stderr."""
+    and warnings (``scene_backgrounds``, ``warnings_to_lines``) go to stderr; with ``plot``, its figure is
+    written there (``write_plot``)."""
     T_world_sensors, images = read_scene_dir(scene)
     backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), cache.background is not None)
     if note:
@@ -323,7 +348,57 @@ def estimate_scene(scene: Path, name: str, cache: EstimatorCache, suggest_touch:
         from tactile6d.estimation.disambiguation import touch_to_tell_apart
 
         touch = touch_to_tell_apart(estimator.surface, result.poses[result.distinct], T)
+    if plot is not None:
+        write_plot(plot, f"{scene} ({name})", estimator.points, cache.mesh(name), T, images, result)
     return result, load_seconds, touch
+
+
+def write_plot(path: Path, title: str, points: np.ndarray, mesh, T_world_sensors: np.ndarray, images: np.ndarray,
+               result: Estimate) -> None:
+    """The estimate's figure (``estimate_figure.estimate_figure``; points (N, 3) on the object, its frame) written
+    to ``path``, titled with ``title`` and the confidence; DataError when it cannot be written."""
+    import matplotlib.pyplot as plt
+
+    from tactile6d.evaluation.estimate_figure import estimate_figure
+
+    if result.confidence is not None:
+        title += f": confidence {result.confidence:.2f}" + (", ambiguous" if result.ambiguous else "")
+    fig = estimate_figure(points, mesh, T_world_sensors, images, result, title)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=80)
+    except OSError as exc:
+        raise DataError(f"cannot write the figure {path}: {exc}") from exc
+    finally:
+        plt.close(fig)
+
+
+def plot_paths(scenes: list[Path], plot: Path | None, single: bool) -> dict[Path, Path]:
+    """Where ``--plot`` puts each scene's figure: ``plot`` itself for a ``single`` scene, else ``plot`` taken for a
+    folder holding ``<parent folder>_<scene folder>.png`` per scene (a number added where two scenes share the
+    name); {} without ``--plot``. InputError when ``plot`` is a folder for one scene or a file for several."""
+    if plot is None:
+        return {}
+    if single:
+        if plot.is_dir():
+            raise InputError(f"--plot {plot} is a folder; with one scene it is the figure's file, e.g. {plot}/estimate.png")
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        if plot.suffix.lower().lstrip(".") not in FigureCanvasBase.get_supported_filetypes():
+            raise InputError(f"--plot {plot}: no figure is written as {plot.suffix or 'a file without a suffix'}; "
+                             "name it .png, .pdf, .svg or .jpg")
+        return {scenes[0]: plot}
+    if plot.exists() and not plot.is_dir():
+        raise InputError(f"--plot {plot} is a file; with several scenes it is the folder that gets one figure per scene")
+    paths: dict[Path, Path] = {}
+    for scene in scenes:
+        folder = scene.resolve()
+        stem = f"{folder.parent.name}_{folder.name}"
+        path, k = plot / f"{stem}.png", 2
+        while path in paths.values():
+            path, k = plot / f"{stem}_{k}.png", k + 1
+        paths[scene] = path
+    return paths
 
 
 def touch_line(touch) -> str:
@@ -462,6 +537,7 @@ def write(text: str, stream) -> None:
 def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: EstimatorCache,
               known: KnownObjects) -> int:
     """Every scene in turn; a failed scene's error goes to stderr and makes the exit status 1."""
+    plots = plot_paths(scenes, args.plot, single=False)
     from tqdm import tqdm
 
     show_bar = not args.no_progress and len(scenes) >= PROGRESS_MIN_SCENES
@@ -472,7 +548,8 @@ def run_batch(scenes: list[Path], args: argparse.Namespace, cfg, cache: Estimato
         for scene in scenes:
             try:
                 name = object_of(scene, args.object, known)
-                result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch)
+                result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch,
+                                                             plots.get(scene))
             except ConfigError:
                 raise  # a bad setting fails every scene alike: stop with exit status 2
             except Tactile6dError as exc:
@@ -510,8 +587,9 @@ def main(argv: list[str]) -> int:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).
         scene = scenes[0]
         name = object_of(scene, args.object, known)
+        plot = plot_paths(scenes, args.plot, single=True).get(scene)
         try:
-            result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch)
+            result, load_seconds, touch = estimate_scene(scene, name, cache, args.suggest_touch, plot)
         except (InputError, NoMatch) as exc:  # what is wrong with this scene: say which scene it is
             raise type(exc)(error_line(scene, exc).removeprefix("error: ")) from exc
         write(as_json(scene, name, result, cfg, load_seconds, args.suggest_touch, touch) if args.json
