@@ -547,6 +547,66 @@ def test_a_no_contact_image_of_another_unit_is_warned_about(world, three_units):
         e.estimate(T, images, backgrounds=three_units["units"])
 
 
+@pytest.fixture(scope="module")
+def tacto_unit(world, three_units, data_dir):
+    """The world's three presses rendered over TACTO's example DIGIT's no-contact image (a known unit,
+    ``encode.KNOWN_UNITS``) -> images (3, 320, 240, 3) RGB."""
+    import cv2
+
+    from tactile6d.sim.render import DigitRenderer
+
+    bgr = cv2.imread(str(data_dir / "digit" / "tacto" / "bg_digit_240_320.jpg"))
+    if bgr is None:
+        pytest.skip("TACTO's background image is not in the data directory")
+    renderer = DigitRenderer.from_default_config(bgr)
+    T = world["T_world_sensors"]
+    return np.stack([renderer.render(world["mesh"], T_TRUE, T[i], seed=10 + i).image for i in range(3)])
+
+
+@pytest.mark.slow
+def test_images_of_a_known_unit_passed_without_its_no_contact_image_are_read_against_it(world, three_units,
+                                                                                       tacto_unit, data_dir):
+    """No no-contact image passed: each image of TACTO's unit disagrees with the default (the paper's unit's) and
+    is read against TACTO's, which it agrees with, as if that had been passed, saying so. A no-contact image the
+    user gives is never replaced: there the images are only warned about."""
+    images, T = tacto_unit, world["T_world_sensors"]
+    cfg = compose_config(["select.N=200"])
+    default = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir)
+    with pytest.warns(photometric.KnownUnitWarning) as caught:
+        known = default.estimate(T, images)
+    messages = [str(w.message) for w in caught if w.category is photometric.KnownUnitWarning]
+    assert [m.split(":")[0] for m in messages] == ["image 0", "image 1", "image 2"]
+    assert all("agrees with TACTO's example DIGIT (digit/tacto/bg_digit_240_320.jpg)'s" in m for m in messages)
+    assert not any(w.category is photometric.UnitWarning for w in caught)  # read right: nothing else to say
+    assert not any(fit.from_another_unit for fit in known.light)
+    tacto = default.known_units.images()["TACTO's example DIGIT (digit/tacto/bg_digit_240_320.jpg)"]
+    given = default.estimate(T, images, backgrounds=tacto)
+    np.testing.assert_array_equal(known.contacts.points, given.contacts.points)
+    np.testing.assert_array_equal(known.angles, given.angles)
+    np.testing.assert_array_equal(known.poses, given.poses)
+    # The user's own no-contact image (here the paper's unit's, passed): warned about, not replaced.
+    own = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir,
+                                       background=three_units["common"])
+    assert own.known_units is None
+    with pytest.warns(photometric.UnitWarning) as caught:
+        result = own.estimate(T, images)
+    assert not any(w.category is photometric.KnownUnitWarning for w in caught)
+    assert all(fit.from_another_unit for fit in result.light)
+    # Images of the default's own unit are read against it, the known units never looked at.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", photometric.UnitWarning)
+        default.estimate(T, three_units["over_common"])
+    # A tracker reads every frame against the same no-contact images, its re-detections too.
+    from tactile6d.estimation.tracker import Tracker
+
+    tracker = Tracker(default)
+    assert tracker.estimator.known_units is None and default.known_units is not None
+    assert tracker.estimator.points is default.points
+    with pytest.warns(photometric.UnitWarning) as caught:
+        tracker.update(T, images)
+    assert not any(w.category is photometric.KnownUnitWarning for w in caught)
+
+
 @pytest.mark.slow
 def test_one_no_contact_latent_serves_every_unit(three_units):
     """The model sees image - background: each unit's own no-contact image is the same (zero) input, so a

@@ -212,3 +212,27 @@ def test_a_bgr_image_is_named_as_such_not_as_another_units(capsys, scene, artifa
     assert "image 2 looks like BGR" in sensor["problems"][0]
     assert not any("another DIGIT unit" in p for p in sensor["light_problems"])
     assert not sensor["light"]["another_unit"]  # the JSON's fit says what the problems say
+
+
+@pytest.mark.slow
+def test_images_of_a_known_unit_without_their_no_contact_image_are_read_against_it(capsys, scene, artifacts,
+                                                                                  data_dir):
+    """The paper's triplet moved onto TACTO's DIGIT (each image's difference from the paper's unit's no-contact image
+    added to TACTO's), read without --background: each image is read against TACTO's, as the estimator reads it, and
+    the reading says so; as if TACTO's had been passed."""
+    paper = encode.load_background(compose_config(), data_dir).astype(np.int16)
+    name = "TACTO's example DIGIT (digit/tacto/bg_digit_240_320.jpg)"
+    tacto = encode.KnownUnits(compose_config(), data_dir).images()[name]
+    for i in range(3):
+        image = read_tactile_image(scene / f"Image_heatmap_{i}.png").astype(np.int16)
+        write_tactile_image(scene / f"Image_heatmap_{i}.png", np.clip(image - paper + tacto, 0, 255).astype(np.uint8))
+    write_tactile_image(scene.parent / "tacto.png", tacto)
+    code, known = run_json(capsys, scene, artifacts)
+    _, given = run_json(capsys, scene, artifacts, "--background", str(scene.parent / "tacto.png"))
+    assert code == 0 and [s["known_unit"] for s in known["sensors"]] == [name] * 3
+    assert [s["known_unit"] for s in given["sensors"]] == [None] * 3
+    for k, g_ in zip(known["sensors"], given["sensors"]):
+        assert not k["light"]["another_unit"] and k["light_problems"] == []
+        assert {**k, "known_unit": None} == g_
+    _, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts))
+    assert f"  no-contact image: the default looked like another unit's; read against {name}'s" in out

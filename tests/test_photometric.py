@@ -566,3 +566,21 @@ def test_no_contact_images_given_in_another_order_are_named(two_units):
         warnings.simplefilter("error")
         right = np.stack([two_units["paper"][1], two_units["tacto"][1]])
         photometric.warn_about_light(images, right, [photometric.fit_light(im, bg) for im, bg in zip(images, right)])
+
+
+@pytest.mark.slow
+def test_an_image_of_another_unit_is_matched_to_the_known_unit_it_agrees_with(two_units):
+    """Each unit's images, fitted against the other unit's no-contact image, agree with their own among the known
+    units, and with none when their own is not among them; images fitted against their own are not looked at."""
+    for unit, other in (("paper", "tacto"), ("tacto", "paper")):
+        images, own = two_units[unit]
+        fits = [photometric.fit_light(im, two_units[other][1]) for im in images]
+        found = photometric.known_units_agreeing(images, fits, {other: two_units[other][1], unit: own})
+        assert sorted(found) == [0, 1, 2] and {name for name, _ in found.values()} == {unit}
+        for i, (_, fit) in found.items():
+            assert fit.agreement == photometric.fit_light(images[i], own).agreement >= photometric.MIN_AGREEMENT
+        assert photometric.known_units_agreeing(images, fits, {other: two_units[other][1]}) == {}
+        own_fits = [photometric.fit_light(im, own) for im in images]
+        assert photometric.known_units_agreeing(images, own_fits, {other: two_units[other][1]}) == {}
+        with pytest.warns(photometric.KnownUnitWarning, match=rf"image 0: .* agrees with {unit}'s on \d+ % of its"):
+            photometric.warn_about_known_units({0: found[0]})

@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -48,6 +49,7 @@ from tactile6d.perception import inputs, photometric
 
 if TYPE_CHECKING:
     from tactile6d.perception.contact_patch import ContactPatch, PatchModel
+    from tactile6d.perception.encode import KnownUnits
 
 # perception.encode and contact_patch (torch, trimesh: seconds to load) are imported where they are used, so that
 # --help answers at once.
@@ -61,7 +63,9 @@ class SensorReading:
     image after the light alignment (what every later reading sees); light: its ``photometric.LightFit``
     (None when the light is not aligned, ``select.align_light`` off); patch: its ``ContactPatch`` (None when
     it cannot be read); problems: why the estimator would refuse it, each a sentence naming the image;
-    unit: why its no-contact image looks like another unit's (``photometric.unit_problems``), or None.
+    unit: why its no-contact image looks like another unit's (``photometric.unit_problems``), or None;
+    known_unit: the known unit whose no-contact image it is read against, its default's having looked like
+    another unit's (``photometric.known_units_agreeing``), or None.
     """
 
     image: np.ndarray
@@ -71,6 +75,7 @@ class SensorReading:
     patch: ContactPatch | None
     problems: list[str]
     unit: str | None = None
+    known_unit: str | None = None
 
     @property
     def light_problems(self) -> list[str]:
@@ -87,7 +92,7 @@ class SensorReading:
             # As ``light_problems`` says it: a grey or BGR image is not also taken for another unit's.
             light = {**self.light.to_dict(), "another_unit": self.unit is not None}
         return {**contact_summary(self.patch), "light": light, "light_problems": self.light_problems,
-                "problems": self.problems}
+                "problems": self.problems, "known_unit": self.known_unit}
 
 
 @dataclass(frozen=True)
@@ -104,7 +109,8 @@ class SceneReading:
 
 
 def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: SelectSettings,
-               sensors: SensorSettings) -> SceneReading:
+               sensors: SensorSettings, known_units: KnownUnits | Mapping[str, np.ndarray] | None = None
+               ) -> SceneReading:
     """The reading steps of ``Estimator.estimate`` on one scene, every problem collected.
 
     T_world_sensors (L, 4, 4); images (L, 320, 240, 3) uint8 RGB; backgrounds (320, 240, 3) for every sensor
@@ -113,7 +119,9 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
     lets them, ``inputs.body_overlap_margin``). Malformed inputs (shapes, types, poses that are not poses, a
     grey background) raise InputError as in the estimator, since nothing can be read from them; inputs the
     estimator refuses as plausibly wrong are read all the same and their problems listed
-    (``SceneReading.refused``).
+    (``SceneReading.refused``). known_units: the no-contact images against which an image is read when it takes
+    its own for another unit's (``encode.KnownUnits`` or name -> (320, 240, 3); the estimator's ``known_units``),
+    None where the user gave the no-contact images.
     """
     T = inputs.check_sensor_poses(T_world_sensors)
     images = inputs.check_images(images, T.shape[0])
@@ -127,6 +135,15 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
     from tactile6d.perception.contact_patch import image_to_patch
 
     aligned, fits = encode.align_light(select, images, per_sensor)
+    found = {}
+    if fits is not None and known_units is not None and any(fit.from_another_unit for fit in fits):
+        units = encode.known_unit_images(known_units)
+        found = photometric.known_units_agreeing(images, fits, units)
+    if found:
+        per_sensor = per_sensor.copy()
+        for i, (name, _) in found.items():
+            per_sensor[i] = units[name]
+        aligned, fits = encode.align_light(select, images, per_sensor)
     units = [None] * len(images) if fits is None else photometric.unit_problems(images, per_sensor, fits)
     sensors = []
     for i, (image, background) in enumerate(zip(images, per_sensor)):
@@ -140,7 +157,7 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
         # A grey or BGR image disagrees with any no-contact image: its own problem says why, not the unit's.
         unit = None if problem is not None else units[i]
         sensors.append(SensorReading(image, np.asarray(background), aligned[i], None if fits is None else fits[i],
-                                     patch, problems, unit))
+                                     patch, problems, unit, found[i][0] if i in found else None))
     return SceneReading(sensors, scene_problems)
 
 
@@ -192,6 +209,9 @@ def sensor_lines(i: int, reading: SensorReading) -> list[str]:
                       "which the renderer's untouched gel sits against its no-contact image")
         lines.append(f"  light: gain {gain}, gamma {gamma} (R/G/B) against its no-contact image, which "
                      f"{100 * fit.agreement:.0f} % of the image and {100 * fit.rim_agreement:.0f} % of its rim follow; {state}")
+    if reading.known_unit is not None:
+        lines.append(f"  no-contact image: the default looked like another unit's; read against {reading.known_unit}'s, "
+                     "which the image agrees with (pass this unit's own for the best reading)")
     lines += [f"  light warning: {p}" for p in reading.light_problems]
     lines += [f"  problem: {p}" for p in reading.problems]
     return lines
@@ -241,17 +261,20 @@ def reading_figure(reading: SceneReading, title: str):
     return fig
 
 
-def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray | None, cfg) -> tuple[np.ndarray, str]:
-    """The no-contact images ``tactile6d estimate`` would read the scene against, and which they are: those
-    given with ``--background``, else the folder's ``background_<i>.png``, else ``render.background``."""
+def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray | None, cfg
+                                 ) -> tuple[np.ndarray, str, KnownUnits | None]:
+    """The no-contact images ``tactile6d estimate`` would read the scene against, which they are, and the known
+    units' that an image may be read against instead: those given with ``--background``, else the folder's
+    ``background_<i>.png`` (no known units for either), else ``render.background`` and ``encode.KNOWN_UNITS``."""
     if given is not None:
-        return given, "--background"
+        return given, "--background", None
     own, _ = scene_backgrounds(scene, n_sensors, False)
     if own is not None:
-        return own, "the folder's background_<i>.png"
+        return own, "the folder's background_<i>.png", None
     from tactile6d.perception import encode
 
-    return encode.load_background(cfg), f"render.background ({cfg.render.background})"
+    return (encode.load_background(cfg), f"render.background ({cfg.render.background})",
+            encode.KnownUnits(cfg))
 
 
 def main(argv: list[str]) -> int:
@@ -262,7 +285,7 @@ def main(argv: list[str]) -> int:
                              "order (default: the folder's background_<i>.png, else render.background)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory holding the patch calibration "
                                                           "(default: paths.artifacts_dir)")
-    parser.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the figure there (PNG or JPG)")
+    parser.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the figure there (PNG or JPG; any format matplotlib writes, from the suffix)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the text")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
@@ -272,12 +295,12 @@ def main(argv: list[str]) -> int:
     scene = Path(args.scene)
     T_world_sensors, images = read_scene_dir(scene)
     given = one_scene_background_option(args.background, "inspect")
-    backgrounds, source = scene_backgrounds_or_default(scene, len(T_world_sensors), given, cfg)
+    backgrounds, source, known_units = scene_backgrounds_or_default(scene, len(T_world_sensors), given, cfg)
     from tactile6d.perception import encode
 
     model = encode.load_patch_model(artifacts)
     reading = read_scene(T_world_sensors, images, backgrounds, model, SelectSettings.from_cfg(cfg.select),
-                         SensorSettings.from_cfg(cfg.sensors))
+                         SensorSettings.from_cfg(cfg.sensors), known_units)
 
     if args.out is not None:
         import matplotlib.pyplot as plt

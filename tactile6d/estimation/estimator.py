@@ -17,6 +17,7 @@ Units: metres, radians; poses are 4x4 float64 (``T_world_sensor``, ``T_world_obj
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -153,7 +154,10 @@ class Estimator:
     calibration (``contact_patch.PatchModel``), needed by ``select.contacts=patch``; mesh: the object
     (``trimesh.Trimesh``), needed by ``rank.agreement_weight`` > 0 (render-and-compare);
     confidence_model: the calibrated confidence (``confidence.ConfidenceModel``), without which estimates
-    carry no confidence.
+    carry no confidence; known_units: the no-contact images of known DIGIT units (``encode.KnownUnits``, or a
+    mapping name -> (320, 240, 3) uint8 RGB), against which ``estimate`` reads an image whose no-contact image
+    looks like another unit's, when the call passes none of its own and the image agrees with one of them
+    (``from_artifacts`` gives the data directory's when no background is passed to it).
 
     The ``gd`` solver splits its batch over JAX's CPU devices, a process-wide setting that must be made
     before JAX first runs: a program that uses it calls ``optimize.use_cpu_devices_for(solver,
@@ -173,6 +177,7 @@ class Estimator:
         patch_model: PatchModel | None = None,
         mesh=None,
         confidence_model: confidence.ConfidenceModel | None = None,
+        known_units: encode_step.KnownUnits | Mapping[str, np.ndarray] | None = None,
     ):
         self.settings = settings if settings is not None else Settings.from_cfg(_default_cfg())
         self.points = np.asarray(points, dtype=np.float64)
@@ -209,6 +214,7 @@ class Estimator:
             pieces = collision.vertices_to_pieces(list(pieces))
         self.penetration_model = collision.PenetrationModel(pieces)
         self.confidence_model = confidence_model
+        self.known_units = known_units
         # The database points stand for the object in the distances between ranked poses.
         self.spread_points = confidence.spread_points(self.points)
         # Their bounding box's diagonal bounds how far apart two sensors touching the object can be.
@@ -236,18 +242,21 @@ class Estimator:
         estimated, or (L, 320, 240, 3) one per sensor in sensor order (a hand's units differ); the encoder
         and the contact patches see each image minus its sensor's. Pass your own sensors' when they are not
         the simulated one; by default it is ``render.background`` from the data directory
-        (``perception.encode.load_background``), the background the databases and the paper's images were rendered over.
+        (``perception.encode.load_background``), the background the databases and the paper's images were rendered over,
+        and an image that does not agree with it is read against the known unit's it agrees with
+        (``encode.KNOWN_UNITS``, with a ``photometric.KnownUnitWarning``).
         """
         cfg = cfg if cfg is not None else _default_cfg()
         settings = Settings.from_cfg(cfg)
         own = artifacts_dir if objects_dir is None else objects_dir
         points = load_surface_points(own, object_name)
         pieces = load_collision_vertices(own, object_name)
-        db_angles = encoder = patch_model = None
+        db_angles = encoder = patch_model = known_units = None
         if settings.select.method == "ours":
             db_angles, latent_nc = load_database_angles(own, object_name)
             if background is None:
                 background = encode_step.load_background(cfg, data_dir)
+                known_units = encode_step.KnownUnits(cfg, data_dir)
             background = check_backgrounds(background)
             encoder = encode_step.LatentAngleEncoder.from_checkpoint(
                 layout.ae_checkpoint(artifacts_dir), background, latent_nc
@@ -258,14 +267,23 @@ class Estimator:
         mesh = load_mesh(own, object_name) if settings.rank.rescores else None
         surface = sample_surface(mesh) if settings.rank.refine else None
         return cls(points, pieces, db_angles, encoder, settings, normals, surface, background, patch_model, mesh,
-                   load_confidence_model(artifacts_dir))
+                   load_confidence_model(artifacts_dir), known_units)
 
     def with_settings(self, settings: Settings) -> Estimator:
         """The same object's estimator with other select/optimize/rank settings, sharing every array
         (the same checks as the constructor: InputError when the new settings need what this one lacks)."""
         return Estimator(self.points, self.penetration_model.pieces, self.db_angles, self.encoder, settings,
                          self.normals, self.surface, self.no_contact, self.patch_model, self.mesh,
-                         self.confidence_model)
+                         self.confidence_model, self.known_units)
+
+    def without_known_units(self) -> Estimator:
+        """The same estimator, sharing every array, reading each image against its own or the call's no-contact
+        image only (``known_units`` None); itself when it has no known units."""
+        if self.known_units is None:
+            return self
+        plain = copy.copy(self)
+        plain.known_units = None
+        return plain
 
     # Each step is public so that a caller can run, time or inspect it alone.
 
@@ -315,6 +333,29 @@ class Estimator:
         if fits is not None:
             photometric.warn_about_light(images, per_sensor, fits, stacklevel=4)
         return aligned, fits
+
+    def _read_light(self, images, per_sensor, given: bool
+                    ) -> tuple[np.ndarray, list[photometric.LightFit] | None, np.ndarray | None, bool]:
+        """``_aligned`` for the reading of one estimate: checked images and no-contact images per sensor, ``given``
+        by the call or not. An image whose no-contact image, not given, looks like another unit's is read against
+        the known unit's it agrees with (``known_units``; a ``photometric.KnownUnitWarning``). -> (images aligned,
+        their fits, the no-contact images per sensor read against, whether any is a known unit's)."""
+        aligned, fits = encode_step.align_light(self.settings.select, images, per_sensor)
+        found = {}
+        # The known units are read only for an image that disagrees with its no-contact image.
+        if (fits is not None and not given and self.known_units is not None
+                and any(fit.from_another_unit for fit in fits)):
+            units = encode_step.known_unit_images(self.known_units)
+            found = photometric.known_units_agreeing(images, fits, units)
+            if found:
+                per_sensor = per_sensor.copy()
+                for i, (name, _) in found.items():
+                    per_sensor[i] = units[name]
+                aligned, fits = encode_step.align_light(self.settings.select, images, per_sensor)
+                photometric.warn_about_known_units(found, stacklevel=4)
+        if fits is not None:
+            photometric.warn_about_light(images, per_sensor, fits, stacklevel=4)
+        return aligned, fits, per_sensor, bool(found)
 
     def encode(self, images, contacts: Contacts | None = None, T_world_sensors=None, backgrounds=None) -> np.ndarray:
         """(L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad).
@@ -384,7 +425,8 @@ class Estimator:
         ``background``). The inputs are checked first (``check_scene``): InputError for a bad one, an
         ``inputs.UnderdeterminedPoseWarning`` for one sensor. Then each image is brought to its no-contact
         image's light (``align_light``; a ``photometric.LightWarning`` where that light cannot be trusted),
-        and only then read. Sensors whose images show no contact while others' do are left out of the
+        and only then read; an image whose no-contact image (not passed by the call) looks like another unit's
+        is read against the known unit's it agrees with (``known_units``; a ``photometric.KnownUnitWarning``). Sensors whose images show no contact while others' do are left out of the
         selection and the fit, and still checked in the ranking (``Contacts.touching``; a
         ``contacts.UntouchedSensorWarning``). Touching sensors a metre apart and out of the object's reach are an
         InputError (``inputs.check_sensors_within_reach``: poses in millimetres, say), and a best pose that
@@ -393,15 +435,18 @@ class Estimator:
         start = time.perf_counter()
         T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)  # the one check
         t0 = time.perf_counter()
-        images, light = (None, None) if images is None else self._aligned(images, per_sensor)
+        light, known = None, False
+        if images is not None:
+            images, light, per_sensor, known = self._read_light(images, per_sensor, backgrounds is not None)
         contacts = self._read_contacts(T, images, per_sensor)
         angles = None
         if self.settings.select.method == "ours":
             if self.encoder is None:
                 raise InputError("this estimator has no image encoder (built for the baseline)")
-            # A call's own no-contact images go to the encoder too; without, it reads against its own.
+            # A call's own no-contact images, or known units' read against, go to the encoder too; without, it
+            # reads against its own.
             angles = encode_step.read_angles(self.encoder, self.settings.select, images, contacts, T, per_sensor,
-                                             None if backgrounds is None else per_sensor)
+                                             per_sensor if backgrounds is not None or known else None)
         encode_seconds = time.perf_counter() - t0
         estimate = self._estimate_checked(T, contacts, angles)
         steps = {k: estimate.seconds[k] for k in STEPS[1:]}

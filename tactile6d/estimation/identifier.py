@@ -270,13 +270,17 @@ class Identifier:
         """``encode``, also returning the checked sensor poses (L, 4, 4): the scene's one check."""
         first = self.full[self.names[0]]
         T, images, per_sensor = first._checked_scene(T_world_sensors, images, backgrounds)
-        images, _ = (None, None) if images is None else first._aligned(images, per_sensor)
+        known = False
+        if images is not None:
+            images, _, per_sensor, known = first._read_light(images, per_sensor, backgrounds is not None)
         contacts = first._read_contacts(T, images, per_sensor)
         if self.settings.select.method != "ours":
             return T, SceneEncoding(contacts, None)
         seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, per_sensor)
-        # A call's own backgrounds go to the encoder; without, it reads against its own (as custom encoders do).
-        latents = first.encoder.latents(seen) if backgrounds is None else first.encoder.latents(seen, per_sensor)
+        # A call's own backgrounds, or known units' read against, go to the encoder; without, it reads against its
+        # own (as custom encoders do).
+        own = backgrounds is not None or known
+        latents = first.encoder.latents(seen, per_sensor) if own else first.encoder.latents(seen)
         return T, SceneEncoding(contacts, latents)
 
     def candidate(self, name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:

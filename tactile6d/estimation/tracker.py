@@ -198,7 +198,9 @@ class Tracker:
                  reader: PatchReader | None = None):
         if not estimator.settings.rank.refine:
             raise InputError("tracking refines the last pose: it needs rank.refine (and the object's surface)")
-        self.estimator = estimator
+        # Every frame is read against the same no-contact images: an estimate's reading of an image against a known
+        # unit's (``Estimator.known_units``) would hold for the re-detections only, not for the updates between them.
+        self.estimator = estimator.without_known_units()
         self.settings = settings if settings is not None else TrackSettings.from_cfg(compose_config()["track"])
         self._pool = ThreadPoolExecutor(self.settings.threads) if self.settings.threads > 1 else None
         # track()'s reader processes: the caller's (who closes it), else the tracker's own, started by track().

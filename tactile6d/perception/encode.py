@@ -52,6 +52,39 @@ def load_background(cfg: Mapping, data_dir: str | Path | None = None) -> np.ndar
     return read_tactile_image(path)
 
 
+# DIGIT units whose no-contact images are in the data directory, by name: an image passed without its own is read
+# against the one it agrees with when it does not agree with the default (``KnownUnits``).
+KNOWN_UNITS = {
+    "Caddeo et al.'s DIGIT (digit/caddeo2023/background.png)": "digit/caddeo2023/background.png",
+    "TACTO's example DIGIT (digit/tacto/bg_digit_240_320.jpg)": "digit/tacto/bg_digit_240_320.jpg",
+}
+
+
+class KnownUnits:
+    """The no-contact images of the DIGIT units in ``KNOWN_UNITS``, (320, 240, 3) uint8 RGB by name, each read as
+    ``load_background`` reads ``render.background`` (from ``data_dir``, else the data store of ``cfg``'s ``paths``),
+    when first asked for: only an image that disagrees with its no-contact image needs them."""
+
+    def __init__(self, cfg: Mapping, data_dir: str | Path | None = None):
+        self._paths = cfg["paths"]
+        self._data_dir = data_dir
+        self._images: dict[str, np.ndarray] | None = None
+
+    def images(self) -> dict[str, np.ndarray]:
+        """Name -> no-contact image (320, 240, 3) uint8 RGB, read on the first call."""
+        if self._images is None:
+            self._images = {name: load_background({"render": {"background": path}, "paths": self._paths},
+                                                  self._data_dir)
+                            for name, path in KNOWN_UNITS.items()}
+        return self._images
+
+
+def known_unit_images(units: KnownUnits | Mapping[str, np.ndarray]) -> Mapping[str, np.ndarray]:
+    """Name -> no-contact image (320, 240, 3) uint8 RGB of ``KnownUnits`` (read now if not yet) or of a mapping
+    given as it is."""
+    return units.images() if isinstance(units, KnownUnits) else units
+
+
 class LatentAngleEncoder:
     """Images (L, 320, 240, 3) uint8 RGB -> (L,) latent angles (rad) of a trained autoencoder.
 

@@ -54,6 +54,7 @@ not pressed (``LightFit.from_another_unit``, ``unit_problems``; a ``UnitWarning`
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -603,6 +604,40 @@ def unit_problems(images: np.ndarray, backgrounds: np.ndarray, fits: list[LightF
 
 class UnitWarning(LightWarning):
     """An image's no-contact image looks like another unit's (``unit_problems``)."""
+
+
+class KnownUnitWarning(UnitWarning):
+    """An image whose no-contact image looked like another unit's was read against a known unit's that it agrees
+    with (``known_units_agreeing``)."""
+
+
+def known_units_agreeing(images: np.ndarray, fits: list[LightFit], units: Mapping[str, np.ndarray]
+                         ) -> dict[int, tuple[str, LightFit]]:
+    """For each image (L, H, W, 3) uint8 whose fit against its no-contact image (fits as ``align_images`` returned
+    them) takes that no-contact image for another unit's (``LightFit.from_another_unit``), the known unit whose
+    no-contact image it agrees with most (``LightFit.agreement``) among those it does not take for another unit's:
+    {image index: (the unit's name, the image's fit against it)}. units: name -> no-contact image (H, W, 3) uint8.
+    Images that agree with no known unit, and those that agreed with their own, are left out."""
+    out = {}
+    for i, fit in enumerate(fits):
+        if not fit.from_another_unit:
+            continue
+        agreeing = [(f.agreement, name, f) for name, background in units.items()
+                    if not (f := fit_light(images[i], background)).from_another_unit]
+        if agreeing:
+            _, name, f = max(agreeing, key=lambda a: a[0])
+            out[i] = (name, f)
+    return out
+
+
+def warn_about_known_units(found: Mapping[int, tuple[str, LightFit]], stacklevel: int = 4) -> None:
+    """A ``KnownUnitWarning`` per image read against a known unit's no-contact image (``known_units_agreeing``'s
+    answer), naming the unit. stacklevel: as ``warnings.warn``'s."""
+    for i, (name, fit) in sorted(found.items()):
+        warnings.warn(f"image {i}: its no-contact image looked like another DIGIT unit's, and the image agrees with "
+                      f"{name}'s on {100 * fit.agreement:.0f} % of its blocks: read against that one. Pass this "
+                      "unit's own no-contact image (a frame with nothing touching) for the best reading",
+                      KnownUnitWarning, stacklevel=stacklevel)
 
 
 def warn_about_light(images: np.ndarray, backgrounds: np.ndarray, fits: list[LightFit], stacklevel: int = 4) -> None:
