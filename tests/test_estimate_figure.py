@@ -14,7 +14,8 @@ from tactile6d.perception.contacts import Contacts
 from tactile6d.sim import gel_press
 
 T_TRUE = make_pose(rotvec_to_rotmat([0.2, -0.1, 0.3]), [0.1, 0.0, 0.2])
-FACES = (np.array([[0.0, 0.0, 0.025], [0.06, 0.0, 0.0], [0.0, -0.04, 0.0]]), np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]]))
+FACES = (np.array([[0.0, 0.0, 0.025], [0.06, 0.0, 0.0], [0.0, -0.04, 0.0]]),  # points, then outward normals
+         np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]]))
 
 
 @pytest.fixture(scope="module")

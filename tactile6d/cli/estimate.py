@@ -4,7 +4,9 @@ Each scene folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line
 frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``background_<i>.png``
 (sensor i's own no-contact image, for every sensor): the images are then read against those, as a note
 on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
-order), which wins. ``--sensor-offsets FILE`` corrects the sensor poses by each sensor's mounting offset
+order), which wins. With neither, the default (``render.background``) is used, and an image that looks like
+another unit's against it is read against the known unit's it agrees with (``encode.KNOWN_UNITS``), as a
+``warning:`` line says. ``--sensor-offsets FILE`` corrects the sensor poses by each sensor's mounting offset
 (``tactile6d calibrate-sensors``) before anything reads them. One sensor only is estimated with a
 ``warning:`` line on stderr (the pose is under-determined). Scenes are given with
 ``--scene DIR [DIR ...]`` and/or ``--scenes-root DIR`` (every folder under DIR that holds a
@@ -381,7 +383,8 @@ def plot_paths(scenes: list[Path], plot: Path | None, single: bool) -> dict[Path
         return {}
     if single:
         if plot.is_dir():
-            raise InputError(f"--plot {plot} is a folder; with one scene it is the figure's file, e.g. {plot}/estimate.png")
+            raise InputError(f"--plot {plot} is a folder; with one scene it is the figure's file, e.g. "
+                             f"{plot}/estimate.png")
         from matplotlib.backend_bases import FigureCanvasBase
 
         if plot.suffix.lower().lstrip(".") not in FigureCanvasBase.get_supported_filetypes():
@@ -389,7 +392,8 @@ def plot_paths(scenes: list[Path], plot: Path | None, single: bool) -> dict[Path
                              "name it .png, .pdf, .svg or .jpg")
         return {scenes[0]: plot}
     if plot.exists() and not plot.is_dir():
-        raise InputError(f"--plot {plot} is a file; with several scenes it is the folder that gets one figure per scene")
+        raise InputError(f"--plot {plot} is a file; with several scenes it is the folder that gets one figure per "
+                         "scene")
     paths: dict[Path, Path] = {}
     for scene in scenes:
         folder = scene.resolve()

@@ -134,16 +134,7 @@ def read_scene(T_world_sensors, images, backgrounds, model: PatchModel, select: 
     from tactile6d.perception import encode
     from tactile6d.perception.contact_patch import image_to_patch
 
-    aligned, fits = encode.align_light(select, images, per_sensor)
-    found = {}
-    if fits is not None and known_units is not None and any(fit.from_another_unit for fit in fits):
-        units = encode.known_unit_images(known_units)
-        found = photometric.known_units_agreeing(images, fits, units)
-    if found:
-        per_sensor = per_sensor.copy()
-        for i, (name, _) in found.items():
-            per_sensor[i] = units[name]
-        aligned, fits = encode.align_light(select, images, per_sensor)
+    aligned, fits, per_sensor, found = encode.align_light_to_known_units(select, images, per_sensor, known_units)
     units = [None] * len(images) if fits is None else photometric.unit_problems(images, per_sensor, fits)
     sensors = []
     for i, (image, background) in enumerate(zip(images, per_sensor)):
@@ -285,7 +276,8 @@ def main(argv: list[str]) -> int:
                              "order (default: the folder's background_<i>.png, else render.background)")
     parser.add_argument("--artifacts", default=None, help="artifacts directory holding the patch calibration "
                                                           "(default: paths.artifacts_dir)")
-    parser.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the figure there (PNG or JPG; any format matplotlib writes, from the suffix)")
+    parser.add_argument("--out", type=Path, default=None, metavar="FILE",
+                        help="write the figure there (PNG or JPG; any format matplotlib writes, from the suffix)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the text")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)

@@ -340,19 +340,9 @@ class Estimator:
         by the call or not. An image whose no-contact image, not given, looks like another unit's is read against
         the known unit's it agrees with (``known_units``; a ``photometric.KnownUnitWarning``). -> (images aligned,
         their fits, the no-contact images per sensor read against, whether any is a known unit's)."""
-        aligned, fits = encode_step.align_light(self.settings.select, images, per_sensor)
-        found = {}
-        # The known units are read only for an image that disagrees with its no-contact image.
-        if (fits is not None and not given and self.known_units is not None
-                and any(fit.from_another_unit for fit in fits)):
-            units = encode_step.known_unit_images(self.known_units)
-            found = photometric.known_units_agreeing(images, fits, units)
-            if found:
-                per_sensor = per_sensor.copy()
-                for i, (name, _) in found.items():
-                    per_sensor[i] = units[name]
-                aligned, fits = encode_step.align_light(self.settings.select, images, per_sensor)
-                photometric.warn_about_known_units(found, stacklevel=4)
+        aligned, fits, per_sensor, found = encode_step.align_light_to_known_units(
+            self.settings.select, images, per_sensor, None if given else self.known_units)
+        photometric.warn_about_known_units(found, stacklevel=4)
         if fits is not None:
             photometric.warn_about_light(images, per_sensor, fits, stacklevel=4)
         return aligned, fits, per_sensor, bool(found)
@@ -426,11 +416,12 @@ class Estimator:
         ``inputs.UnderdeterminedPoseWarning`` for one sensor. Then each image is brought to its no-contact
         image's light (``align_light``; a ``photometric.LightWarning`` where that light cannot be trusted),
         and only then read; an image whose no-contact image (not passed by the call) looks like another unit's
-        is read against the known unit's it agrees with (``known_units``; a ``photometric.KnownUnitWarning``). Sensors whose images show no contact while others' do are left out of the
-        selection and the fit, and still checked in the ranking (``Contacts.touching``; a
-        ``contacts.UntouchedSensorWarning``). Touching sensors a metre apart and out of the object's reach are an
-        InputError (``inputs.check_sensors_within_reach``: poses in millimetres, say), and a best pose that
-        presses deep into a sensor gets an ``inputs.PenetrationWarning`` (a pose given inverted, say).
+        is read against the known unit's it agrees with (``known_units``; a ``photometric.KnownUnitWarning``).
+        Sensors whose images show no contact while others' do are left out of the selection and the fit, and still
+        checked in the ranking (``Contacts.touching``; a ``contacts.UntouchedSensorWarning``). Touching sensors a
+        metre apart and out of the object's reach are an InputError (``inputs.check_sensors_within_reach``: poses in
+        millimetres, say), and a best pose that presses deep into a sensor gets an ``inputs.PenetrationWarning`` (a
+        pose given inverted, say).
         """
         start = time.perf_counter()
         T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)  # the one check

@@ -32,7 +32,8 @@ def grid_to_image(values: np.ndarray, step: int) -> np.ndarray:
     return np.repeat(np.repeat(np.asarray(values), step, axis=-2), step, axis=-1)
 
 
-def predicted_presses(mesh, T_world_object: np.ndarray, T_world_sensors: np.ndarray, step: int = PLOT_STEP) -> np.ndarray:
+def predicted_presses(mesh, T_world_object: np.ndarray, T_world_sensors: np.ndarray,
+                      step: int = PLOT_STEP) -> np.ndarray:
     """Each sensor's press depth at one object pose, on the image's pixels.
 
     mesh: the object (trimesh or ``render.MeshArrays``, its own frame); T_world_object (4, 4); T_world_sensors
@@ -89,14 +90,12 @@ def estimate_figure(points: np.ndarray, mesh, T_world_sensors: np.ndarray, image
         if (predicted[i] > 0).any():
             image_ax.contour(predicted[i] > 0, levels=[0.5], colors="tab:orange", linewidths=1.0)
         image_ax.set_title(f"sensor {i}: image", color=colour, fontsize=9)
-        top = 1000 * max(float(predicted[i].max()),
-                         0.0 if observed is None else float(np.where(observed[i], estimate.contacts.depths[i], 0).max()),
-                         1e-4)
+        read = None if observed is None else np.where(observed[i], estimate.contacts.depths[i], 0.0)
+        top = 1000 * max(float(predicted[i].max()), 0.0 if read is None else float(read.max()), 1e-4)
         if observed is None:
             observed_ax.text(0.5, 0.5, "no image read\n(the method reads none)", ha="center", va="center", fontsize=8)
         else:
-            observed_ax.imshow(1000 * np.where(observed[i], estimate.contacts.depths[i], 0.0), cmap="viridis",
-                               vmin=0, vmax=top)
+            observed_ax.imshow(1000 * read, cmap="viridis", vmin=0, vmax=top)
             observed_ax.set_title("press read (mm)", fontsize=9)
         shown = predicted_ax.imshow(1000 * predicted[i], cmap="viridis", vmin=0, vmax=top)
         agreement = "" if ious is None else f", IoU {ious[i]:.2f}"

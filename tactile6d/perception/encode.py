@@ -156,6 +156,27 @@ def align_light(settings: SelectSettings, images: np.ndarray | None, no_contact:
     return photometric.align_images(images, per_sensor)
 
 
+def align_light_to_known_units(settings: SelectSettings, images: np.ndarray, per_sensor: np.ndarray,
+                               known_units: KnownUnits | Mapping[str, np.ndarray] | None):
+    """``align_light`` of images (L, 320, 240, 3) against their no-contact images per_sensor (L, 320, 240, 3), each
+    image whose no-contact image looks like another unit's read instead against the known unit's it agrees with
+    (``photometric.known_units_agreeing``; none with ``known_units`` None). The known units are read only for such
+    an image. -> (images aligned, their fits (None where the light is not aligned), the no-contact images per
+    sensor read against, {image index: (known unit's name, its fit)} for those read against a known unit's)."""
+    aligned, fits = align_light(settings, images, per_sensor)
+    if fits is None or known_units is None or not any(fit.from_another_unit for fit in fits):
+        return aligned, fits, per_sensor, {}
+    library = known_unit_images(known_units)
+    found = photometric.known_units_agreeing(images, fits, library)
+    if not found:
+        return aligned, fits, per_sensor, found
+    per_sensor = per_sensor.copy()
+    for i, (name, _) in found.items():
+        per_sensor[i] = library[name]
+    aligned, fits = align_light(settings, images, per_sensor)
+    return aligned, fits, per_sensor, found
+
+
 def sensor_background(no_contact: np.ndarray, i: int) -> np.ndarray:
     """Sensor i's no-contact image (320, 240, 3) of one for all (320, 240, 3) or one per sensor (L, 320, 240, 3)."""
     return no_contact[i] if no_contact.ndim == 4 else no_contact
