@@ -33,6 +33,11 @@ with), drawn from ``--seed``:
   the centre and 1 +- 0.05 (``shading10``: 0.10) at the edge the ramp points to, in a direction drawn per channel;
   then noise 2, the no-contact image not recorded again (``shade_image``). The light's fit models one gain and
   gamma per channel for the whole image, not this.
+- ``other-unit``: every image moved onto another DIGIT unit, TACTO's example unit (``OTHER_UNIT``): its difference
+  from the no-contact image it was rendered over added to that unit's no-contact image (as both renderers add a
+  press to the background), clipped to 8 bits; no no-contact image passed, as a user who never recorded one
+  gives it (the issue's "another DIGIT unit, no-contact image not passed"); ``other-unit-own``: the same with that
+  unit's no-contact image passed.
 
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
 the evaluation scores it; one JSON line per condition: the positional error of the best pose, mean and
@@ -67,12 +72,14 @@ from tactile6d.evaluation import scoring
 from tactile6d.evaluation.metric_table import ERROR_KEYS
 from tactile6d.evaluation.sensor_subsets import estimate_and_score
 from tactile6d.perception import photometric
+from tactile6d.perception.encode import load_background
 from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
 from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90", "slight", "recorded+1", "recorded-1",
-              "shading", "shading10")
+              "shading", "shading10", "other-unit", "other-unit-own")
+OTHER_UNIT = "digit/tacto/bg_digit_240_320.jpg"  # TACTO's example DIGIT's no-contact image, in the data directory
 ISSUE_CONDITIONS = CONDITIONS[:4]  # issue 34's table: the default
 JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60, "jpeg90": 90}
 BLUR_SIGMA = 1.0  # pixels
@@ -86,11 +93,16 @@ ADI_WITHIN = 0.02  # m: the share of scenes whose best pose is this close (ADI) 
 
 
 def real_set_up(scene_set: scenes.SceneSet, condition: str, background: np.ndarray,
-                rng: np.random.Generator) -> scenes.SceneSet:
+                rng: np.random.Generator, other_unit: np.ndarray | None = None) -> scenes.SceneSet:
     """``scene_set`` under one of CONDITIONS (module docstring); background (320, 240, 3) uint8 RGB, the
-    no-contact image its images were rendered over. The truth (object poses, contacts) is unchanged."""
+    no-contact image its images were rendered over; other_unit (320, 240, 3) uint8 RGB, ``OTHER_UNIT``'s (for the
+    ``other-unit`` conditions). The truth (object poses, contacts) is unchanged."""
     if condition == "clean":
         return scene_set
+    if condition in ("other-unit", "other-unit-own"):
+        moved = scene_set.images.astype(np.int16) - background.astype(np.int16) + other_unit.astype(np.int16)
+        own = np.broadcast_to(other_unit, scene_set.images.shape) if condition == "other-unit-own" else None
+        return replace(scene_set, images=np.clip(moved, 0, 255).astype(np.uint8), backgrounds=own)
     if condition == "noise":
         return replace(scene_set, images=perturb.add_camera_noise(scene_set.images, NOISE_STD, rng))
     if condition == "light":
@@ -206,8 +218,10 @@ def main() -> int:
     estimators = {o: Estimator.from_artifacts(o, args.artifacts, cfg) for o in dict.fromkeys(clean.objects.tolist())}
     references = {o: scoring.load_object_reference(args.artifacts, o) for o in estimators}
     background = next(iter(estimators.values())).no_contact  # the one the set was rendered over: the default
+    other_unit = load_background({"render": {"background": OTHER_UNIT}, "paths": cfg.paths})
     for condition in args.conditions:
-        scene_set = real_set_up(clean, condition, background, np.random.default_rng((args.seed, CONDITIONS.index(condition))))
+        scene_set = real_set_up(clean, condition, background, np.random.default_rng((args.seed, CONDITIONS.index(condition))),
+                                other_unit)
         rows, failed = {key: [] for key in ERROR_KEYS}, 0
         for s, obj in enumerate(clean.objects.tolist()):
             with warnings.catch_warnings():

@@ -71,6 +71,22 @@ def test_recorded_gives_every_sensor_the_no_contact_image_a_grey_level_off_and_n
     assert out.images is s.images and out.T_world_sensors is s.T_world_sensors
 
 
+@pytest.mark.parametrize("condition", ["other-unit", "other-unit-own"])
+def test_other_unit_moves_each_press_onto_the_other_units_no_contact_image(condition):
+    s = small_set()
+    other = np.full((320, 240, 3), 90, np.uint8)
+    other[:10] = 250  # where a press onto it saturates
+    out = check.real_set_up(s, condition, BACKGROUND, np.random.default_rng(0), other)
+    expected = np.clip(s.images.astype(int) - BACKGROUND + other, 0, 255)
+    np.testing.assert_array_equal(out.images, expected)
+    assert out.images[..., :10, :, :].max() == 255
+    if condition == "other-unit":
+        assert out.backgrounds is None  # nothing passed: the estimator's default
+    else:
+        np.testing.assert_array_equal(out.backgrounds, np.broadcast_to(other, s.images.shape))
+    assert out.T_world_sensors is s.T_world_sensors
+
+
 def test_kinematic_moves_the_sensor_poses_by_the_declared_sigmas_and_keeps_the_images():
     s = small_set(n=3, L=3)
     out = check.real_set_up(s, "kinematic", BACKGROUND, np.random.default_rng(0))
