@@ -596,15 +596,23 @@ def test_images_of_a_known_unit_passed_without_its_no_contact_image_are_read_aga
     with warnings.catch_warnings():
         warnings.simplefilter("error", photometric.UnitWarning)
         default.estimate(T, three_units["over_common"])
-    # A tracker reads every frame against the same no-contact images, its re-detections too.
+    # A tracker decides at its first frame and reads every frame against the same no-contact images, its
+    # re-detections and its updates alike: as if TACTO's had been passed with every frame.
     from tactile6d.estimation.tracker import Tracker
 
-    tracker = Tracker(default)
-    assert tracker.estimator.known_units is None and default.known_units is not None
-    assert tracker.estimator.points is default.points
-    with pytest.warns(photometric.UnitWarning) as caught:
-        tracker.update(T, images)
-    assert not any(w.category is photometric.KnownUnitWarning for w in caught)
+    tracker, passed = Tracker(default), Tracker(default)
+    assert tracker.estimator.known_units is None and tracker.estimator.points is default.points
+    with pytest.warns(photometric.KnownUnitWarning) as caught:
+        first = tracker.update(T, images)
+    assert len([w for w in caught if w.category is photometric.KnownUnitWarning]) == 3
+    assert not any(w.category is photometric.UnitWarning for w in caught)
+    reference = passed.update(T, images, backgrounds=tacto)
+    np.testing.assert_array_equal(first.pose, reference.pose)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", photometric.UnitWarning)  # decided once: nothing more to say
+        for redetect in (False, True):
+            np.testing.assert_array_equal(tracker.update(T, images, redetect=redetect).pose,
+                                          passed.update(T, images, backgrounds=tacto, redetect=redetect).pose)
 
 
 @pytest.mark.slow

@@ -50,6 +50,12 @@ fit of the light (``photometric.fit_light``, 30 ms for three images) is made at 
 ``light_every`` frames only, and applied in between (a lookup table): the light does not drift at 30
 frames per second.
 
+No-contact images: those the call passes, else the estimator's. Where the estimator has known units
+(``Estimator.known_units``) and the call passes none, the first frame of each sensor count decides, as an estimate
+does, which of its images are read against a known unit's (``encode.align_light_to_known_units``; a
+``photometric.KnownUnitWarning``), and every later frame of that sensor count is read against the same no-contact
+images, re-detections and updates alike, until ``reset``.
+
 Settings: config section ``track`` (conf/track/default.yaml); the estimator's own sections (``rank``,
 ``sensors``) for the refinement and the score. Units: metres, radians; poses 4x4 float64.
 """
@@ -74,7 +80,7 @@ from tactile6d.estimation.estimator import Estimate, Estimator
 from tactile6d.perception import photometric
 from tactile6d.perception.contact_patch import image_to_patch
 from tactile6d.perception.contacts import Contacts, UntouchedSensorWarning, patches_to_contacts
-from tactile6d.perception.encode import sensor_background
+from tactile6d.perception.encode import align_light_to_known_units, sensor_background
 from tactile6d.perception.patch_reader import PatchReader
 from tactile6d.runtime.executor import cancel_unless_interrupted
 
@@ -198,9 +204,11 @@ class Tracker:
                  reader: PatchReader | None = None):
         if not estimator.settings.rank.refine:
             raise InputError("tracking refines the last pose: it needs rank.refine (and the object's surface)")
-        # Every frame is read against the same no-contact images: an estimate's reading of an image against a known
-        # unit's (``Estimator.known_units``) would hold for the re-detections only, not for the updates between them.
+        # Every frame is read against the same no-contact images: the known units are looked at once per sensor count
+        # (``_unit_backgrounds``), not by each re-detection's estimate, which would leave the updates between them
+        # reading against others.
         self.estimator = estimator.without_known_units()
+        self._known_units = estimator.known_units
         self.settings = settings if settings is not None else TrackSettings.from_cfg(compose_config()["track"])
         self._pool = ThreadPoolExecutor(self.settings.threads) if self.settings.threads > 1 else None
         # track()'s reader processes: the caller's (who closes it), else the tracker's own, started by track().
@@ -217,7 +225,9 @@ class Tracker:
         return cls(estimator, TrackSettings.from_cfg(cfg["track"]))
 
     def reset(self) -> None:
-        """Forget the track: the next frame is estimated from scratch."""
+        """Forget the track: the next frame is estimated from scratch (its no-contact images decided anew)."""
+        # Per sensor count, the no-contact images decided at its first frame (None: the estimator's own).
+        self._unit_backgrounds: dict[int, np.ndarray | None] = {}
         self._poses: list[np.ndarray] = []  # the poses returned so far (the last two are kept)
         self._hypotheses: list[_Hypothesis] = []  # the poses followed, the one with the least evidence reported
         self._penetration_limit = np.inf  # m: the deepest penetration an updated pose may have
@@ -254,8 +264,21 @@ class Tracker:
         change from frame to frame. backgrounds: the sensors' no-contact images for this frame, as for
         ``Estimator.estimate``; redetect: estimate this frame from scratch. -> ``TrackedFrame``."""
         start = time.perf_counter()
+        return self._step(self._checked_frame(T_world_sensors, images, backgrounds, redetect), start)
+
+    def _checked_frame(self, T_world_sensors, images, backgrounds, redetect: bool = False) -> _Frame:
+        """One frame's inputs checked (``Estimator.check_scene``), with the no-contact images it is read against."""
         T, images, per_sensor = self.estimator._checked_scene(T_world_sensors, images, backgrounds)
-        return self._step(_Frame(T, images, per_sensor, backgrounds, redetect), start)
+        if backgrounds is None and self._known_units is not None and images is not None and per_sensor is not None:
+            n = len(T)
+            if n not in self._unit_backgrounds:
+                _, _, chosen, found = align_light_to_known_units(self.estimator.settings.select, images, per_sensor,
+                                                                 self._known_units)
+                photometric.warn_about_known_units(found, stacklevel=4)
+                self._unit_backgrounds[n] = chosen if found else None
+            if self._unit_backgrounds[n] is not None:
+                per_sensor = backgrounds = self._unit_backgrounds[n]
+        return _Frame(T, images, per_sensor, backgrounds, redetect)
 
     def track(self, frames: Iterable[tuple]) -> Iterator[TrackedFrame]:
         """``update`` over a stream of frames, each ``(T_world_sensors, images)`` or ``(T_world_sensors,
@@ -278,13 +301,11 @@ class Tracker:
         waiting: _Frame | None = None
         for item in frames:
             try:
-                T_world_sensors, images, backgrounds = _frame_arguments(item)
-                T, images, per_sensor = self.estimator._checked_scene(T_world_sensors, images, backgrounds)
+                frame = self._checked_frame(*_frame_arguments(item))
             except Exception:
                 if waiting is not None:
                     yield self._step(waiting, time.perf_counter())
                 raise
-            frame = _Frame(T, images, per_sensor, backgrounds, False)
             frame.ahead = self._submit_reading(reader, frame)
             if waiting is not None:
                 yield self._step(waiting, time.perf_counter())
