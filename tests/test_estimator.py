@@ -584,6 +584,15 @@ def test_images_of_a_known_unit_passed_without_its_no_contact_image_are_read_aga
     np.testing.assert_array_equal(known.contacts.points, given.contacts.points)
     np.testing.assert_array_equal(known.angles, given.angles)
     np.testing.assert_array_equal(known.poses, given.poses)
+    # Identification reads the scene once for every object, the same way.
+    from tactile6d.estimation.identifier import Identifier
+
+    identifier = Identifier({"prim_x": default})
+    with pytest.warns(photometric.KnownUnitWarning):
+        read = identifier.encode(T, images)
+    read_given = identifier.encode(T, images, backgrounds=tacto)
+    np.testing.assert_array_equal(read.contacts.points, read_given.contacts.points)
+    np.testing.assert_array_equal(read.latents, read_given.latents)
     # The user's own no-contact image (here the paper's unit's, passed): warned about, not replaced.
     own = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir,
                                        background=three_units["common"])
