@@ -618,3 +618,31 @@ def test_only_the_object_ranked_first_may_warn_that_it_presses_into_a_sensor(cap
     first = json.loads(out)["objects"][0]["name"]
     pressed = [line for line in err.splitlines() if "the best pose presses" in line]
     assert len(pressed) == 1 and first in ("prim_box", "prim_cylinder"), err
+
+
+@pytest.mark.slow
+def test_plot_draws_the_most_probable_objects_estimate(prim_artifacts, tmp_path, capsys):
+    """`tactile6d identify --plot` writes the winner's figure for one scene, one per scene into a folder for
+    several, as `estimate --plot` does."""
+    from tactile6d.data.hdf5 import write_tactile_image
+
+    folders = []
+    for parent in ("a", "b"):
+        scene = tmp_path / parent / "triplet_0"
+        scene.mkdir(parents=True)
+        T_sensors = touching_sensors(prim_artifacts, "prim_box", BOX_TOUCHES)
+        (scene / "poses_sensors.txt").write_text(g.poses_to_text(T_sensors))
+        for i in range(3):
+            write_tactile_image(scene / f"Image_heatmap_{i}.png", np.full((320, 240, 3), 128, np.uint8))
+        folders.append(scene)
+    common = ["identify", "--objects", "prim_box", "prim_cylinder", "--artifacts", str(prim_artifacts),
+              "select.method=baseline", "select.N=400", "identify.weights=[1,1,1]", "identify.workers=1"]
+    figure = tmp_path / "figure.png"
+    code = cli_main([*common, "--scene", str(folders[0]), "--plot", str(figure)])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    code = cli_main([*common, "--plot", str(tmp_path / "figures"), "--scene", *map(str, folders)])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "figures").iterdir()) == ["a_triplet_0.png", "b_triplet_0.png"]

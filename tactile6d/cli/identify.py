@@ -18,6 +18,8 @@ its ``error``), the others still print, and the exit status is 1. The sensors' n
 from the scenes' images), else the scene folder's ``background_<i>.png`` when it holds them (said on stderr),
 else ``render.background``; as for ``tactile6d estimate``, one sensor only gives a ``warning:`` line.
 ``--sensor-offsets FILE`` corrects the sensor poses by the hand's offsets (``tactile6d calibrate-sensors``) first.
+``--plot PATH`` draws the most probable object's estimate as ``tactile6d estimate --plot`` does (one scene: the
+figure's file; several: a folder of ``<parent folder>_<scene folder>.png``); a scene that nothing matches gets none.
 
 Config overrides (``key=value``) pass through, e.g. ``identify.screen.N=1000`` or
 ``identify.weights=[1,1,10]``.
@@ -34,8 +36,9 @@ from typing import TYPE_CHECKING
 
 from tactile6d.cli import description
 from tactile6d.cli.estimate import (FROM_SCENES, add_sensor_offsets_argument, background_option, collect_scenes,
-                                    error_json, error_line, is_override, read_sensor_offsets, scene_backgrounds,
-                                    split_overrides, use_solver_devices, warnings_to_lines)
+                                    error_json, error_line, is_override, plot_paths, read_sensor_offsets,
+                                    scene_backgrounds, split_overrides, use_solver_devices, warnings_to_lines,
+                                    write_plot)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
@@ -66,6 +69,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                              f"per sensor in sensor order; '{FROM_SCENES}': each sensor's estimated from its images "
                              "in the scenes given; default: the scene's background_<i>.png, else render.background")
     add_sensor_offsets_argument(parser, "poses_sensors.txt's poses")
+    parser.add_argument("--plot", type=Path, default=None, metavar="PATH",
+                        help="draw the most probable object's estimate (as tactile6d estimate --plot); one scene: the "
+                             "figure's file; several: a folder of <parent>_<scene>.png")
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     moved = [word for word in args.scene if is_override(word)]  # ``--scene A B key=value``: nargs='+' is greedy
@@ -116,12 +122,13 @@ def main(argv: list[str]) -> int:
     scenes = collect_scenes(args)
     offsets = read_sensor_offsets(args)
     background = background_option(args.background, scenes)
+    plots = plot_paths(scenes, args.plot, single=len(scenes) == 1)
     failed = 0
     with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors,
                                    own=own) as identifier:
         for k, scene in enumerate(scenes):
             try:
-                result = identify_scene(identifier, scene, offsets, background is not None)
+                result = identify_scene(identifier, scene, offsets, background is not None, plots.get(scene), known)
             except ConfigError:
                 raise  # the same for every scene
             except Tactile6dError as exc:
@@ -143,9 +150,12 @@ def main(argv: list[str]) -> int:
     return 1 if failed else 0
 
 
-def identify_scene(identifier, scene: Path, offsets, background_given: bool) -> Identification:
+def identify_scene(identifier, scene: Path, offsets, background_given: bool, plot: Path | None = None,
+                   known: KnownObjects | None = None) -> Identification:
     """One scene folder identified: its poses corrected by the hand's ``offsets`` (or None), its own no-contact
-    images used unless ``--background`` was given; notes and warnings (each said once) on stderr."""
+    images used unless ``--background`` was given; notes and warnings (each said once) on stderr; with ``plot``,
+    the most probable object's estimate drawn there (``estimate.write_plot``; its mesh from ``known``'s artifacts
+    when its estimator holds none)."""
     T_world_sensors, images = read_scene_dir(scene)
     if offsets is not None:
         from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
@@ -160,6 +170,18 @@ def identify_scene(identifier, scene: Path, offsets, background_given: bool) -> 
         result = identifier.identify(T_world_sensors, images, backgrounds)
     for line in dict.fromkeys(warnings_to_lines(scene, caught)):  # each object's estimate may say it
         print(line, file=sys.stderr)
+    best = result.best
+    if plot is not None and best.pose is not None:
+        estimator = identifier.full[best.name]
+        mesh = estimator.mesh
+        if mesh is None:
+            from tactile6d.data.object_artifacts import load_mesh
+
+            mesh = load_mesh(known.get(best.name).objects_dir, best.name)
+        write_plot(plot, f"{scene}: {best.name}, p {best.probability:.2f}", estimator.points, mesh, T_world_sensors,
+                   images, best.candidate.estimate)
+    elif plot is not None:
+        print(f"note: {scene}: no object matches, so no figure", file=sys.stderr)
     return result
 
 
