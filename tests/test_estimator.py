@@ -548,7 +548,7 @@ def test_a_no_contact_image_of_another_unit_is_warned_about(world, three_units):
 
 
 @pytest.fixture(scope="module")
-def tacto_unit(world, three_units, data_dir):
+def tacto_unit(world, data_dir):
     """The world's three presses rendered over TACTO's example DIGIT's no-contact image (a known unit,
     ``encode.KNOWN_UNITS``) -> images (3, 320, 240, 3) RGB."""
     import cv2
