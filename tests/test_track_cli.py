@@ -352,7 +352,7 @@ def test_bench_track_without_sequences_says_which_stage_makes_them(capsys, tmp_p
 
 def test_warnings_that_come_again_with_other_figures_are_told_once_per_image():
     from tactile6d.cli.track import warning_lines
-    from tactile6d.perception.photometric import LightWarning, UnitWarning
+    from tactile6d.perception.photometric import KnownUnitWarning, LightWarning, UnitWarning
 
     def caught(category, text):
         return warnings.WarningMessage(text, category, "f.py", 1)
@@ -373,7 +373,7 @@ def test_warnings_that_come_again_with_other_figures_are_told_once_per_image():
 
 def test_a_no_contact_image_of_another_unit_draws_the_hint_to_take_the_streams_own():
     from tactile6d.cli.track import hint_lines
-    from tactile6d.perception.photometric import LightWarning, UnitWarning
+    from tactile6d.perception.photometric import KnownUnitWarning, LightWarning, UnitWarning
 
     def caught(category):
         return warnings.WarningMessage(category("image 0: ..."), category, "f.py", 1)
@@ -383,6 +383,8 @@ def test_a_no_contact_image_of_another_unit_draws_the_hint_to_take_the_streams_o
         "--background first-frames"]
     assert hint_lines([caught(UnitWarning)], learned=True) == []
     assert hint_lines([caught(LightWarning)], learned=False) == []
+    # An image read against a known unit's no-contact image it agrees with is read right: no hint.
+    assert hint_lines([caught(KnownUnitWarning)], learned=False) == []
 
 
 

@@ -16,7 +16,9 @@ Input, one of:
 ``--background`` gives the sensors' no-contact images (one file for all or one per sensor), or with
 ``first-frames`` takes each sensor's from the stream itself: its mean over the first ``--background-frames``
 frames, which must show nothing touching (``tactile6d.perception.stream_background``; a recording started
-before the fingers close). When a no-contact image looked like another unit's, a ``hint:`` line names it.
+before the fingers close). Without either, the tracker reads a known unit's images against its no-contact image
+(``encode.KNOWN_UNITS``; a ``warning:`` line names the unit). When a no-contact image looked like another unit's
+and no known unit's agreed, a ``hint:`` line names ``first-frames``.
 
 ``--sensor-offsets FILE`` corrects every frame's sensor poses by each sensor's mounting offset (``tactile6d
 calibrate-sensors``) before the tracker sees them.
@@ -210,9 +212,12 @@ def warning_lines(caught: list[warnings.WarningMessage]) -> list[str]:
 
 
 def hint_lines(caught: list[warnings.WarningMessage], learned: bool) -> list[str]:
-    """A ``hint:`` line after the warnings when a no-contact image looked like another unit's
-    (``photometric.UnitWarning``) and the stream's own first frames were not taken (``learned``)."""
-    if learned or not any(issubclass(w.category, photometric.UnitWarning) for w in caught):
+    """A ``hint:`` line after the warnings when a no-contact image looked like another unit's and was read against
+    it all the same (``photometric.UnitWarning``; not a ``KnownUnitWarning``, whose image was read against the known
+    unit's it agrees with) and the stream's own first frames were not taken (``learned``)."""
+    misread = [w for w in caught if issubclass(w.category, photometric.UnitWarning)
+               and not issubclass(w.category, photometric.KnownUnitWarning)]
+    if learned or not misread:
         return []
     return [f"hint: a stream recorded from before the fingers touch gives each unit's own no-contact image: "
             f"--background {FIRST_FRAMES}"]
