@@ -227,7 +227,6 @@ class EstimatorCache:
         self.known, self.cfg, self.background, self.offsets = known, cfg, background, offsets
         self._loaded: dict[str, tuple[Estimator | Tactile6dError, float]] = {}
         self._reported: set[str] = set()
-        self._meshes: dict = {}
 
     def load(self, name: str) -> Estimator:
         """The object's Estimator, loading it if not yet done; the Tactile6dError of a failed load."""
@@ -248,18 +247,6 @@ class EstimatorCache:
         if isinstance(loaded, Tactile6dError):
             raise loaded
         return loaded
-
-    def mesh(self, name: str):
-        """The object's mesh (``--plot`` draws its presses): the estimator's own when it renders and compares,
-        else read from the object's artifacts once."""
-        estimator = self.load(name)
-        if estimator.mesh is not None:
-            return estimator.mesh
-        if name not in self._meshes:
-            from tactile6d.data.object_artifacts import load_mesh
-
-            self._meshes[name] = load_mesh(self.known.get(name).objects_dir, name)
-        return self._meshes[name]
 
     def sensor_poses(self, T_world_sensors: np.ndarray) -> np.ndarray:
         """The sensor poses as read, corrected by the hand's offsets when there are any."""
@@ -351,8 +338,19 @@ def estimate_scene(scene: Path, name: str, cache: EstimatorCache, suggest_touch:
 
         touch = touch_to_tell_apart(estimator.surface, result.poses[result.distinct], T)
     if plot is not None:
-        write_plot(plot, f"{scene} ({name})", estimator.points, cache.mesh(name), T, images, result)
+        write_plot(plot, f"{scene} ({name})", estimator.points, object_mesh(estimator, cache.known, name), T, images,
+                   result)
     return result, load_seconds, touch
+
+
+def object_mesh(estimator: Estimator, known: KnownObjects, name: str):
+    """The object's mesh (``--plot`` draws its presses): the estimator's own when it renders and compares, else
+    read from the object's artifacts (``object_artifacts.load_mesh``, whose file reads are cached)."""
+    if estimator.mesh is not None:
+        return estimator.mesh
+    from tactile6d.data.object_artifacts import load_mesh
+
+    return load_mesh(known.get(name).objects_dir, name)
 
 
 def write_plot(path: Path, title: str, points: np.ndarray, mesh, T_world_sensors: np.ndarray, images: np.ndarray,

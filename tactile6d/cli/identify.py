@@ -36,9 +36,9 @@ from typing import TYPE_CHECKING
 
 from tactile6d.cli import description
 from tactile6d.cli.estimate import (FROM_SCENES, add_sensor_offsets_argument, background_option, collect_scenes,
-                                    error_json, error_line, is_override, plot_paths, read_sensor_offsets,
-                                    scene_backgrounds, split_overrides, use_solver_devices, warnings_to_lines,
-                                    write_plot)
+                                    error_json, error_line, is_override, object_mesh, plot_paths,
+                                    read_sensor_offsets, scene_backgrounds, split_overrides, use_solver_devices,
+                                    warnings_to_lines, write_plot)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
@@ -173,13 +173,8 @@ def identify_scene(identifier, scene: Path, offsets, background_given: bool, plo
     best = result.best
     if plot is not None and best.pose is not None:
         estimator = identifier.full[best.name]
-        mesh = estimator.mesh
-        if mesh is None:
-            from tactile6d.data.object_artifacts import load_mesh
-
-            mesh = load_mesh(known.get(best.name).objects_dir, best.name)
-        write_plot(plot, f"{scene}: {best.name}, p {best.probability:.2f}", estimator.points, mesh, T_world_sensors,
-                   images, best.candidate.estimate)
+        write_plot(plot, f"{scene}: {best.name}, p {best.probability:.2f}", estimator.points,
+                   object_mesh(estimator, known, best.name), T_world_sensors, images, best.candidate.estimate)
     elif plot is not None:
         print(f"note: {scene}: no object matches, so no figure", file=sys.stderr)
     return result
