@@ -2,10 +2,12 @@
 scene set, with artifacts made by the real stages for a primitive; the two must agree."""
 
 import json
+import re
 import shutil
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -13,10 +15,10 @@ from stages import optimize, prepare_object, rank, sample_surface, select_tuples
 from tactile6d import cli
 from tactile6d.core import geometry as g
 from tactile6d.core.config import compose_config
-from tactile6d.core.errors import exit_on_error
+from tactile6d.core.errors import InputError, exit_on_error
 from tactile6d.core.sensor import sensor_poses_touching
 from tactile6d.data import layout
-from tactile6d.data.hdf5 import read_artifact, read_scene_dir, write_artifact, write_tactile_image
+from tactile6d.data.hdf5 import read_artifact, read_scene_dir, read_tactile_image, write_artifact, write_tactile_image
 from tactile6d.estimation import estimator as est
 from tactile6d.estimation.run_storage import scene_rows
 from tactile6d.sim.scenes import SceneSet
@@ -613,3 +615,82 @@ def test_plot_writes_a_figure_per_scene_into_the_folder_given(capsys, artifacts,
     code, _, err = run(capsys, "--object", "prim_box", "--artifacts", str(artifacts), "--plot",
                        str(tmp_path / "a_file"), "--scene", *map(str, folders), *BASELINE)
     assert code == 2 and "is a file; with several scenes it is the folder" in err
+
+
+# --- --known-units ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_images_of_your_own_unit_are_read_against_it_when_given_as_a_known_unit(capsys, artifacts, scene, tmp_path,
+                                                                                data_dir, monkeypatch):
+    """The scene's flat images disagree with the default no-contact image (the paper's unit's) and with the data
+    directory's known units; given a folder of the user's units, each image is read against the one it agrees
+    with, as if that had been passed, and a warning line names it."""
+    from test_estimator import write_tiny_autoencoder
+
+    write_tiny_autoencoder(artifacts, 500, "prim_box")
+    monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
+    units = tmp_path / "units"
+    units.mkdir()
+    write_tactile_image(units / "lab_unit_7.png", np.full((320, 240, 3), FLAT, np.uint8))
+    write_tactile_image(units / "lab_unit_8.png", np.ascontiguousarray(
+        read_tactile_image(data_dir / "digit" / "caddeo2023" / "background.png")[::-1, ::-1]))
+    common = ["--object", "prim_box", "--scene", str(scene), "--artifacts", str(artifacts), "--json"]
+    code, known, err = run(capsys, *common, "--known-units", str(units), "select.N=500")
+    assert code == 0, err
+    named = [line for line in err.splitlines() if "looked like another DIGIT unit's" in line]
+    assert [line.split(": ")[2] for line in named] == ["image 0", "image 1", "image 2"]
+    assert all("agrees with lab_unit_7's on 100 % of its blocks" in line for line in named)
+    code, given, _ = run(capsys, *common, "--background", str(units / "lab_unit_7.png"), "select.N=500")
+    for key in ("poses", "scores", "selection"):
+        assert json.loads(known)[key] == json.loads(given)[key]
+    code, plain, err = run(capsys, *common, "select.N=500")
+    assert "looks like another DIGIT unit's" in err and "lab_unit_7" not in err
+    assert json.loads(plain)["selection"] != json.loads(known)["selection"]
+
+
+@pytest.mark.parametrize("case,message", [
+    ("with a background", "give --background or --known-units, not both"),
+    ("missing", "--known-units: /nonexistent/units not found"),
+    ("empty folder", "holds no PNG or JPEG image"),
+    ("one name twice", "both name unit 'unit_0'; a unit is named by its file's stem"),
+    ("grey", "unit 'unit_0': background is grey"),
+    ("not an image", "--known-units: "),
+])
+def test_bad_known_units_are_clear_errors(tmp_path, case, message):
+    from tactile6d.cli.estimate import known_units_option
+    from tactile6d.perception.encode import KnownUnits
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    paths = write_backgrounds(tmp_path / "a", [FLAT])
+    background = None
+    if case == "with a background":
+        background = paths
+    elif case == "missing":
+        paths = ["/nonexistent/units"]
+    elif case == "empty folder":
+        paths = [str(tmp_path / "b")]
+    elif case == "one name twice":
+        paths = [str(tmp_path / "a"), *write_backgrounds(tmp_path / "b", [FLAT])]
+    elif case == "grey":
+        paths = write_backgrounds(tmp_path / "a", [(100, 100, 100)])
+    elif case == "not an image":
+        (tmp_path / "b" / "unit_1.png").write_text("not a PNG")
+        paths = [str(tmp_path / "b")]
+    with pytest.raises(InputError, match=re.escape(message)):
+        KnownUnits(compose_config(), own=known_units_option(paths, background))
+
+
+def test_known_units_from_files_and_folders_are_named_by_their_stems(tmp_path):
+    from tactile6d.cli.estimate import known_units_option
+
+    (tmp_path / "drawer").mkdir()
+    folder = write_backgrounds(tmp_path / "drawer", [FLAT, UNIT_COLOURS[0]])
+    (tmp_path / "drawer" / "notes.txt").write_text("not an image, not a unit")
+    single = tmp_path / "spare.jpg"
+    cv2.imwrite(str(single), np.full((320, 240, 3), UNIT_COLOURS[2][::-1], np.uint8))
+    units = known_units_option([str(tmp_path / "drawer"), str(single), folder[0]], None)
+    assert sorted(units) == ["spare", "unit_0", "unit_1"]
+    assert units["unit_1"].shape == (320, 240, 3) and tuple(units["unit_1"][0, 0]) == UNIT_COLOURS[0]
+    assert known_units_option(None, None) is None

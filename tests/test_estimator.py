@@ -19,8 +19,8 @@ from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_scene_dir, write_artifact
 from tactile6d.estimation import estimator as est
 from tactile6d.perception import contact_patch, photometric
-from tactile6d.perception.encode import load_background
-from tactile6d.perception.inputs import UnderdeterminedPoseWarning
+from tactile6d.perception.encode import KNOWN_UNITS, load_background
+from tactile6d.perception.inputs import PenetrationWarning, UnderdeterminedPoseWarning
 from tactile6d.sim.meshes import pack_pieces
 from tactile6d.sim.surface_sampling import sample_surface_even
 
@@ -542,6 +542,10 @@ def test_a_no_contact_image_of_another_unit_is_warned_about(world, three_units):
     unit_warnings = [str(w.message) for w in caught if w.category is photometric.UnitWarning]
     assert [m.split(":")[0] for m in unit_warnings] == ["image 0", "image 1", "image 2"]
     assert all(fit.from_another_unit for fit in result.light)
+    # The contacts so misread press the best pose into a sensor; the warning then blames the images, not the poses.
+    pressed = [str(w.message) for w in caught if w.category is PenetrationWarning]
+    assert len(pressed) == 1 and "Images 0, 1, 2 were read against another unit's no-contact image" in pressed[0]
+    assert "T_world_sensor" not in pressed[0]
     with warnings.catch_warnings():
         warnings.simplefilter("error", photometric.UnitWarning)
         e.estimate(T, images, backgrounds=three_units["units"])
@@ -601,6 +605,9 @@ def test_images_of_a_known_unit_passed_without_its_no_contact_image_are_read_aga
         result = own.estimate(T, images)
     assert not any(w.category is photometric.KnownUnitWarning for w in caught)
     assert all(fit.from_another_unit for fit in result.light)
+    assert read.misread == ()  # what the identifier's PenetrationWarning names (estimate's, above)
+    with pytest.warns(photometric.UnitWarning):
+        assert Identifier({"prim_x": own}).encode(T, images).misread == (0, 1, 2)
     # Images of the default's own unit are read against it, the known units never looked at.
     with warnings.catch_warnings():
         warnings.simplefilter("error", photometric.UnitWarning)
@@ -622,6 +629,47 @@ def test_images_of_a_known_unit_passed_without_its_no_contact_image_are_read_aga
         for redetect in (False, True):
             np.testing.assert_array_equal(tracker.update(T, images, redetect=redetect).pose,
                                           passed.update(T, images, backgrounds=tacto, redetect=redetect).pose)
+
+
+@pytest.mark.slow
+def test_your_own_units_are_known_beside_the_data_directorys(world, three_units, data_dir):
+    """A unit of the user's whose LEDs differ from every known unit's (the paper's unit's no-contact image turned
+    half a turn), given as ``known_units``: its images passed without a no-contact image are read against it, as
+    if it had been passed, and the warning names it; without it, no known unit agrees and a UnitWarning says so."""
+    turned = np.ascontiguousarray(three_units["common"][::-1, ::-1])
+    over_common = three_units["over_common"].astype(np.int16)
+    images = np.clip(over_common - three_units["common"] + turned, 0, 255).astype(np.uint8)
+    T, cfg = world["T_world_sensors"], compose_config(["select.N=200"])
+    mine = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir,
+                                        known_units={"lab unit 7": turned})
+    with pytest.warns(photometric.KnownUnitWarning) as caught:
+        known = mine.estimate(T, images)
+    messages = [str(w.message) for w in caught if w.category is photometric.KnownUnitWarning]
+    assert len(messages) == 3 and all("agrees with lab unit 7's" in m for m in messages)
+    assert not any(w.category is photometric.UnitWarning for w in caught)
+    given = mine.estimate(T, images, backgrounds=turned)
+    np.testing.assert_array_equal(known.contacts.points, given.contacts.points)
+    np.testing.assert_array_equal(known.poses, given.poses)
+    from tactile6d.estimation.identifier import Identifier  # identification reads the scene the same way
+
+    with Identifier.from_artifacts(["prim_x"], three_units["artifacts"], compose_config(["identify.workers=1"]),
+                                   data_dir, calibrated=False, known_units={"lab unit 7": turned}) as identifier:
+        with pytest.warns(photometric.KnownUnitWarning, match="agrees with lab unit 7's"):
+            read = identifier.encode(T, images)
+    np.testing.assert_array_equal(read.contacts.points, given.contacts.points)
+    plain = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir)
+    with pytest.warns(photometric.UnitWarning) as caught:
+        plain.estimate(T, images)
+    assert not any(w.category is photometric.KnownUnitWarning for w in caught)
+    with pytest.raises(InputError, match="pass a background or known units, not both"):
+        est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir,
+                                     background=three_units["common"], known_units={"lab unit 7": turned})
+    with pytest.raises(InputError, match="is already a known unit's"):
+        est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir,
+                                     known_units={next(iter(KNOWN_UNITS)): turned})
+    with pytest.raises(InputError, match=r"unit 'lab unit 7': .*one \(320, 240, 3\) image per unit"):
+        est.Estimator.from_artifacts("prim_x", three_units["artifacts"], cfg, data_dir=data_dir,
+                                     known_units={"lab unit 7": np.stack([turned] * 3)})
 
 
 @pytest.mark.slow

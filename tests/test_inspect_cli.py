@@ -236,3 +236,29 @@ def test_images_of_a_known_unit_without_their_no_contact_image_are_read_against_
         assert {**k, "known_unit": None} == g_
     _, out, _ = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts))
     assert f"  no-contact image: the default looked like another unit's; read against {name}'s" in out
+
+
+@pytest.mark.slow
+def test_images_of_your_own_unit_are_read_against_it_with_known_units(capsys, scene, artifacts, data_dir):
+    """The paper's triplet moved onto a unit of the user's whose LEDs differ from every known unit's (the paper's
+    unit's no-contact image turned half a turn): read against it with --known-units FOLDER, as if it had been passed;
+    without, taken for another unit's that no known unit matches."""
+    paper = encode.load_background(compose_config(), data_dir)
+    turned = np.ascontiguousarray(paper[::-1, ::-1])
+    for i in range(3):
+        image = read_tactile_image(scene / f"Image_heatmap_{i}.png").astype(np.int16)
+        write_tactile_image(scene / f"Image_heatmap_{i}.png",
+                            np.clip(image - paper.astype(np.int16) + turned, 0, 255).astype(np.uint8))
+    units = scene.parent / "units"
+    units.mkdir()
+    write_tactile_image(units / "lab_unit_7.png", turned)
+    code, known = run_json(capsys, scene, artifacts, "--known-units", str(units))
+    _, given = run_json(capsys, scene, artifacts, "--background", str(units / "lab_unit_7.png"))
+    _, plain = run_json(capsys, scene, artifacts)
+    assert code == 0 and [s["known_unit"] for s in known["sensors"]] == ["lab_unit_7"] * 3
+    for k, g_ in zip(known["sensors"], given["sensors"]):
+        assert {**k, "known_unit": None} == g_
+    assert all(s["known_unit"] is None and s["light"]["another_unit"] for s in plain["sensors"])
+    code, out, err = run(capsys, "--scene", str(scene), "--artifacts", str(artifacts), "--known-units", str(units),
+                         "--background", str(units / "lab_unit_7.png"))
+    assert code == 2 and "give --background or --known-units, not both" in err

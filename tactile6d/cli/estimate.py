@@ -5,8 +5,8 @@ frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``
 (sensor i's own no-contact image, for every sensor): the images are then read against those, as a note
 on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
 order), which wins. With neither, the default (``render.background``) is used, and an image that looks like
-another unit's against it is read against the known unit's it agrees with (``encode.KNOWN_UNITS``), as a
-``warning:`` line says. ``--sensor-offsets FILE`` corrects the sensor poses by each sensor's mounting offset
+another unit's against it is read against the known unit's it agrees with (``encode.KNOWN_UNITS``, and your
+own units' given with ``--known-units``), as a ``warning:`` line says. ``--sensor-offsets FILE`` corrects the sensor poses by each sensor's mounting offset
 (``tactile6d calibrate-sensors``) before anything reads them. One sensor only is estimated with a
 ``warning:`` line on stderr (the pose is under-determined). Scenes are given with
 ``--scene DIR [DIR ...]`` and/or ``--scenes-root DIR`` (every folder under DIR that holds a
@@ -77,7 +77,7 @@ from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, DataError, InputError, NoMatch, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
-from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir
+from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir, read_tactile_image
 from tactile6d.perception import photometric
 from tactile6d.perception.inputs import PenetrationWarning, UnderdeterminedPoseWarning
 
@@ -114,6 +114,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                              f"in the scenes given (pixel median; at least {MIN_SCENES_FOR_BACKGROUND} scenes "
                              "that touch in different places); default: each scene's background_<i>.png, else "
                              "render.background")
+    add_known_units_argument(parser)
     add_sensor_offsets_argument(parser, "poses_sensors.txt's poses")
     parser.add_argument("--suggest-touch", action="store_true",
                         help="when the estimate is ambiguous, also say where one more touch would tell its poses "
@@ -129,6 +130,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     moved = [word for word in args.scene if is_override(word)]
     args.scene = [word for word in args.scene if not is_override(word)]
     args.background, args.overrides = split_overrides(args.background, moved + list(args.overrides))
+    args.known_units, args.overrides = split_overrides(args.known_units, args.overrides)
     if not args.scene and args.scenes_root is None:
         parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
     return args
@@ -150,6 +152,15 @@ def add_sensor_offsets_argument(parser: argparse.ArgumentParser, poses: str) -> 
     parser.add_argument("--sensor-offsets", default=None, metavar="FILE",
                         help=f"each sensor's mounting offset, applied to {poses} before anything else (JSON from "
                              "`tactile6d calibrate-sensors`)")
+
+
+def add_known_units_argument(parser: argparse.ArgumentParser) -> None:
+    """``--known-units PATH [PATH ...]``: the user's own DIGIT units' no-contact images (``known_units_option``)."""
+    parser.add_argument("--known-units", nargs="+", default=None, metavar="PATH",
+                        help="your DIGIT units' no-contact images (PNG or JPEG, 240 x 320), files or folders of "
+                             "them, each unit named by its file's stem: an image passed without its own no-contact "
+                             "image that does not agree with the default is read against the unit's it agrees "
+                             "with, among these and the data directory's (not with --background)")
 
 
 def use_solver_devices(cfg) -> None:
@@ -221,10 +232,13 @@ def object_of(scene: Path, object_arg: str, known: KnownObjects) -> str:
 
 class EstimatorCache:
     """One Estimator per object, loaded on first use; a load that failed fails again without retrying.
-    ``offsets``: the hand's sensor offsets (``tactile6d calibrate-sensors``), which ``sensor_poses`` applies."""
+    ``offsets``: the hand's sensor offsets (``tactile6d calibrate-sensors``), which ``sensor_poses`` applies;
+    ``known_units``: the user's units' no-contact images (``known_units_option``)."""
 
-    def __init__(self, known: KnownObjects, cfg, background: np.ndarray | None, offsets: SensorOffsets | None = None):
+    def __init__(self, known: KnownObjects, cfg, background: np.ndarray | None, offsets: SensorOffsets | None = None,
+                 known_units: dict[str, np.ndarray] | None = None):
         self.known, self.cfg, self.background, self.offsets = known, cfg, background, offsets
+        self.known_units = known_units
         self._loaded: dict[str, tuple[Estimator | Tactile6dError, float]] = {}
         self._reported: set[str] = set()
 
@@ -237,7 +251,7 @@ class EstimatorCache:
             try:
                 found = self.known.require_artifacts(name, baseline=self.cfg.select.method != "ours")
                 loaded = Estimator.from_artifacts(name, self.known.artifacts, self.cfg, background=self.background,
-                                                  objects_dir=found.objects_dir)
+                                                  objects_dir=found.objects_dir, known_units=self.known_units)
             except ConfigError:
                 raise  # the same for every object: not worth remembering
             except Tactile6dError as exc:
@@ -463,6 +477,45 @@ def background_option(words: list[str] | None, scenes: list[Path]) -> np.ndarray
     return read_background_images(words) if words else None
 
 
+UNIT_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def known_units_option(paths: list[str] | None, background: list[str] | None) -> dict[str, np.ndarray] | None:
+    """``--known-units``' no-contact images, name (the file's stem) -> (320, 240, 3) uint8 RGB, from files and
+    folders (every PNG or JPEG in one), or None when not given. InputError beside ``--background`` (with which
+    they would never be looked at), for a path that is neither, a folder without images and two files of one
+    name."""
+    if not paths:
+        return None
+    if background:
+        raise InputError("--known-units are looked at only for images read without their own no-contact image: "
+                         "give --background or --known-units, not both")
+    files = []
+    for path in map(Path, paths):
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in UNIT_IMAGE_SUFFIXES and p.is_file())
+            if not found:
+                raise InputError(f"--known-units: {path} holds no PNG or JPEG image")
+            files += found
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise InputError(f"--known-units: {path} not found")
+    named: dict[str, Path] = {}
+    for file in files:
+        if file.stem in named and named[file.stem] != file:
+            raise InputError(f"--known-units: {named[file.stem]} and {file} both name unit {file.stem!r}; a unit is "
+                             "named by its file's stem")
+        named[file.stem] = file
+    units = {}
+    for name, file in named.items():
+        try:
+            units[name] = read_tactile_image(file)
+        except InputError as exc:
+            raise InputError(f"--known-units: {exc}") from exc
+    return units
+
+
 def one_scene_background_option(words: list[str] | None, command: str) -> np.ndarray | None:
     """``--background``'s files for a command that reads one scene (``command``: its name); ``from-scenes``, which
     needs the images of many, is an InputError that says where it works."""
@@ -583,7 +636,8 @@ def main(argv: list[str]) -> int:
     if args.object != AUTO:
         known.get(args.object)  # an unknown name ends the command before any scene is read
     scenes = collect_scenes(args)
-    cache = EstimatorCache(known, cfg, background_option(args.background, scenes), read_sensor_offsets(args))
+    cache = EstimatorCache(known, cfg, background_option(args.background, scenes), read_sensor_offsets(args),
+                           known_units_option(args.known_units, args.background))
 
     if len(scenes) == 1 and args.scenes_root is None:
         # One scene, as before batches existed: no header, and any error ends the command (exit 2).

@@ -16,7 +16,9 @@ named in that one line; with several scenes a scene that fails prints its line (
 its ``error``), the others still print, and the exit status is 1. The sensors' no-contact images:
 ``--background`` (one file for every sensor, or one per sensor in sensor order; ``from-scenes`` estimates them
 from the scenes' images), else the scene folder's ``background_<i>.png`` when it holds them (said on stderr),
-else ``render.background``; as for ``tactile6d estimate``, one sensor only gives a ``warning:`` line.
+else ``render.background``, an image that looks like another unit's against it read against the known unit's
+it agrees with (``--known-units`` adds your own), as for ``tactile6d estimate``; one sensor only gives a
+``warning:`` line.
 ``--sensor-offsets FILE`` corrects the sensor poses by the hand's offsets (``tactile6d calibrate-sensors``) first.
 ``--plot PATH`` draws the most probable object's estimate as ``tactile6d estimate --plot`` does (one scene: the
 figure's file; several: a folder of ``<parent folder>_<scene folder>.png``); a scene that nothing matches gets none.
@@ -35,8 +37,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from tactile6d.cli import description
-from tactile6d.cli.estimate import (FROM_SCENES, add_sensor_offsets_argument, background_option, collect_scenes,
-                                    error_json, error_line, is_override, object_mesh, plot_paths,
+from tactile6d.cli.estimate import (FROM_SCENES, add_known_units_argument, add_sensor_offsets_argument,
+                                    background_option, collect_scenes, error_json, error_line, is_override,
+                                    known_units_option, object_mesh, plot_paths,
                                     read_sensor_offsets, scene_backgrounds, split_overrides, use_solver_devices,
                                     warnings_to_lines, write_plot)
 from tactile6d.cli.objects import KnownObjects
@@ -68,6 +71,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="the sensors' own no-contact image(s) (PNG, 240 x 320): one for every sensor or one "
                              f"per sensor in sensor order; '{FROM_SCENES}': each sensor's estimated from its images "
                              "in the scenes given; default: the scene's background_<i>.png, else render.background")
+    add_known_units_argument(parser)
     add_sensor_offsets_argument(parser, "poses_sensors.txt's poses")
     parser.add_argument("--plot", type=Path, default=None, metavar="PATH",
                         help="draw the most probable object's estimate (as tactile6d estimate --plot); one scene: the "
@@ -77,6 +81,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     moved = [word for word in args.scene if is_override(word)]  # ``--scene A B key=value``: nargs='+' is greedy
     args.scene = [word for word in args.scene if not is_override(word)]
     args.background, args.overrides = split_overrides(args.background, moved + list(args.overrides))
+    args.known_units, args.overrides = split_overrides(args.known_units, args.overrides)
     if not args.scene and args.scenes_root is None:
         parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
     if args.objects:  # ``--objects A B select.N=5`` puts the override among the names
@@ -122,10 +127,11 @@ def main(argv: list[str]) -> int:
     scenes = collect_scenes(args)
     offsets = read_sensor_offsets(args)
     background = background_option(args.background, scenes)
+    known_units = known_units_option(args.known_units, args.background)
     plots = plot_paths(scenes, args.plot, single=len(scenes) == 1)
     failed = 0
     with Identifier.from_artifacts(objects, artifacts, cfg, background=background, distractors=distractors,
-                                   own=own) as identifier:
+                                   own=own, known_units=known_units) as identifier:
         for k, scene in enumerate(scenes):
             try:
                 result = identify_scene(identifier, scene, offsets, background is not None, plots.get(scene), known)

@@ -4,7 +4,8 @@ For checking a set-up (real sensors, a hand's poses, recorded no-contact images)
 estimates, and for finding out why an estimate went wrong. The scene folder is in the layout of
 ``tactile6d estimate`` (``poses_sensors.txt``, ``Image_heatmap_<i>.png``, optionally ``background_<i>.png``)
 and the no-contact images are chosen as it chooses them (``--background``, else the folder's
-``background_<i>.png``, else ``render.background``). The reading steps of ``Estimator.estimate`` then run on
+``background_<i>.png``, else ``render.background``, against which an image that looks like another unit's is read
+against the known unit's it agrees with: ``encode.KNOWN_UNITS`` and yours, ``--known-units``). The reading steps of ``Estimator.estimate`` then run on
 it (``read_scene``): the light alignment (``perception.encode.align_light``) and the contact patch of each
 image as aligned (``perception.contact_patch.image_to_patch``), which needs only the patch calibration of
 ``--artifacts`` (stage calibrate_patch), no object. Printed per sensor:
@@ -39,7 +40,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactile6d.cli import description
-from tactile6d.cli.estimate import one_scene_background_option, scene_backgrounds, split_overrides
+from tactile6d.cli.estimate import (add_known_units_argument, known_units_option, one_scene_background_option,
+                                    scene_backgrounds, split_overrides)
 from tactile6d.core import sensor
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import DataError, InputError
@@ -252,11 +254,13 @@ def reading_figure(reading: SceneReading, title: str):
     return fig
 
 
-def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray | None, cfg
+def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray | None, cfg,
+                                 own_units: Mapping[str, np.ndarray] | None = None
                                  ) -> tuple[np.ndarray, str, KnownUnits | None]:
     """The no-contact images ``tactile6d estimate`` would read the scene against, which they are, and the known
     units' that an image may be read against instead: those given with ``--background``, else the folder's
-    ``background_<i>.png`` (no known units for either), else ``render.background`` and ``encode.KNOWN_UNITS``."""
+    ``background_<i>.png`` (no known units for either), else ``render.background`` and ``encode.KNOWN_UNITS`` with
+    ``own_units`` (``--known-units``)."""
     if given is not None:
         return given, "--background", None
     own, _ = scene_backgrounds(scene, n_sensors, False)
@@ -265,7 +269,7 @@ def scene_backgrounds_or_default(scene: Path, n_sensors: int, given: np.ndarray 
     from tactile6d.perception import encode
 
     return (encode.load_background(cfg), f"render.background ({cfg.render.background})",
-            encode.KnownUnits(cfg))
+            encode.KnownUnits(cfg, own=own_units))
 
 
 def main(argv: list[str]) -> int:
@@ -274,6 +278,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--background", nargs="+", default=None, metavar="PNG",
                         help="the sensors' no-contact image(s): one for every sensor or one per sensor in sensor "
                              "order (default: the folder's background_<i>.png, else render.background)")
+    add_known_units_argument(parser)
     parser.add_argument("--artifacts", default=None, help="artifacts directory holding the patch calibration "
                                                           "(default: paths.artifacts_dir)")
     parser.add_argument("--out", type=Path, default=None, metavar="FILE",
@@ -282,12 +287,15 @@ def main(argv: list[str]) -> int:
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     args.background, overrides = split_overrides(args.background, list(args.overrides))
+    args.known_units, overrides = split_overrides(args.known_units, overrides)
     cfg = compose_config(overrides)
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     scene = Path(args.scene)
     T_world_sensors, images = read_scene_dir(scene)
     given = one_scene_background_option(args.background, "inspect")
-    backgrounds, source, known_units = scene_backgrounds_or_default(scene, len(T_world_sensors), given, cfg)
+    own_units = known_units_option(args.known_units, args.background)
+    backgrounds, source, known_units = scene_backgrounds_or_default(scene, len(T_world_sensors), given, cfg,
+                                                                    own_units)
     from tactile6d.perception import encode
 
     model = encode.load_patch_model(artifacts)

@@ -17,7 +17,8 @@ Input, one of:
 ``first-frames`` takes each sensor's from the stream itself: its mean over the first ``--background-frames``
 frames, which must show nothing touching (``tactile6d.perception.stream_background``; a recording started
 before the fingers close). Without either, the tracker reads a known unit's images against its no-contact image
-(``encode.KNOWN_UNITS``; a ``warning:`` line names the unit). When a no-contact image looked like another unit's
+(``encode.KNOWN_UNITS``, and your own units' given with ``--known-units``; a ``warning:`` line names the unit).
+When a no-contact image looked like another unit's
 and no known unit's agreed, a ``hint:`` line names ``first-frames``.
 
 ``--sensor-offsets FILE`` corrects every frame's sensor poses by each sensor's mounting offset (``tactile6d
@@ -59,8 +60,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactile6d.cli import description
-from tactile6d.cli.estimate import (EstimatorCache, add_sensor_offsets_argument, read_sensor_offsets, split_overrides,
-                                    use_solver_devices, write)
+from tactile6d.cli.estimate import (EstimatorCache, add_known_units_argument, add_sensor_offsets_argument,
+                                    known_units_option, read_sensor_offsets, split_overrides, use_solver_devices,
+                                    write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError, Tactile6dError
@@ -111,6 +113,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--background-frames", type=int, default=stream_background.DEFAULT_FRAMES, metavar="N",
                         help=f"with --background {FIRST_FRAMES}: how many of the first frames "
                              f"(default {stream_background.DEFAULT_FRAMES}, at least {stream_background.MIN_FRAMES})")
+    add_known_units_argument(parser)
     parser.add_argument("--artifacts", default=None, help="artifacts directory (default: paths.artifacts_dir)")
     parser.add_argument("--json", action="store_true", help="one JSON object per frame (JSON Lines)")
     parser.add_argument("--bop", metavar="FILE", help="also write a BOP result CSV")
@@ -127,6 +130,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         words, args.overrides = split_overrides(getattr(args, name), list(args.overrides))
         setattr(args, name, words)
     args.background, args.overrides = split_overrides(args.background, list(args.overrides))
+    args.known_units, args.overrides = split_overrides(args.known_units, list(args.overrides))
     if args.background_frames < stream_background.MIN_FRAMES:
         parser.error(f"--background-frames must be at least {stream_background.MIN_FRAMES}")
     if FIRST_FRAMES in (args.background or []) and args.background != [FIRST_FRAMES]:
@@ -231,7 +235,8 @@ def main(argv: list[str]) -> int:
     artifacts = args.artifacts if args.artifacts is not None else cfg.paths.artifacts_dir
     learned = args.background == [FIRST_FRAMES]
     background = read_background_images(args.background) if args.background and not learned else None
-    cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args))
+    cache = EstimatorCache(KnownObjects(artifacts, cfg), cfg, background, read_sensor_offsets(args),
+                           known_units_option(args.known_units, args.background))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
         warnings.simplefilter("once", UnderdeterminedPoseWarning)

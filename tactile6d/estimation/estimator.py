@@ -229,6 +229,7 @@ class Estimator:
         data_dir: str | Path | None = None,
         background: np.ndarray | None = None,
         objects_dir: str | Path | None = None,
+        known_units: Mapping[str, np.ndarray] | None = None,
     ) -> Estimator:
         """Load one object's artifacts: object.h5 (collision pieces, mesh), surface.h5 (points) and, for
         method 'ours', latents.h5 (angles), the autoencoder checkpoint and the patch calibration. cfg: the composed config
@@ -244,19 +245,28 @@ class Estimator:
         the simulated one; by default it is ``render.background`` from the data directory
         (``perception.encode.load_background``), the background the databases and the paper's images were rendered over,
         and an image that does not agree with it is read against the known unit's it agrees with
-        (``encode.KNOWN_UNITS``, with a ``photometric.KnownUnitWarning``).
+        (``encode.KNOWN_UNITS``, with a ``photometric.KnownUnitWarning``). known_units: your own units' no-contact
+        images, name -> (320, 240, 3) uint8 RGB, known beside those (``encode.KnownUnits``); InputError with a
+        ``background``, against which they would never be looked at.
         """
         cfg = cfg if cfg is not None else _default_cfg()
         settings = Settings.from_cfg(cfg)
         own = artifacts_dir if objects_dir is None else objects_dir
         points = load_surface_points(own, object_name)
         pieces = load_collision_vertices(own, object_name)
-        db_angles = encoder = patch_model = known_units = None
-        if settings.select.method == "ours":
+        db_angles = encoder = patch_model = None
+        if settings.select.method != "ours":
+            known_units = None  # the baseline reads no image
+        else:
             db_angles, latent_nc = load_database_angles(own, object_name)
             if background is None:
                 background = encode_step.load_background(cfg, data_dir)
-                known_units = encode_step.KnownUnits(cfg, data_dir)
+                known_units = encode_step.KnownUnits(cfg, data_dir, known_units)
+            elif known_units:
+                raise InputError("known units are looked at only for images read without their own no-contact "
+                                 "image: pass a background or known units, not both")
+            else:
+                known_units = None
             background = check_backgrounds(background)
             encoder = encode_step.LatentAngleEncoder.from_checkpoint(
                 layout.ae_checkpoint(artifacts_dir), background, latent_nc
@@ -325,23 +335,16 @@ class Estimator:
         trusted (``photometric.warn_about_light``). backgrounds as for ``estimate``."""
         if images is None:
             return None, None
-        return self._aligned(images, self.backgrounds(len(images), backgrounds))
+        return self._read_light(images, self.backgrounds(len(images), backgrounds), None)[:2]
 
-    def _aligned(self, images, per_sensor) -> tuple[np.ndarray | None, list[photometric.LightFit] | None]:
-        """``align_light`` on checked images and no-contact images per sensor."""
-        aligned, fits = encode_step.align_light(self.settings.select, images, per_sensor)
-        if fits is not None:
-            photometric.warn_about_light(images, per_sensor, fits, stacklevel=4)
-        return aligned, fits
-
-    def _read_light(self, images, per_sensor, given: bool
+    def _read_light(self, images, per_sensor, known_units: encode_step.KnownUnits | Mapping[str, np.ndarray] | None
                     ) -> tuple[np.ndarray, list[photometric.LightFit] | None, np.ndarray | None, bool]:
-        """``_aligned`` for the reading of one estimate: checked images and no-contact images per sensor, ``given``
-        by the call or not. An image whose no-contact image, not given, looks like another unit's is read against
-        the known unit's it agrees with (``known_units``; a ``photometric.KnownUnitWarning``). -> (images aligned,
-        their fits, the no-contact images per sensor read against, whether any is a known unit's)."""
+        """``align_light`` on checked images and no-contact images per sensor, an image whose no-contact image looks
+        like another unit's read instead against the one of ``known_units`` it agrees with (None: none; a
+        ``photometric.KnownUnitWarning``). -> (images aligned, their fits, the no-contact images per sensor read
+        against, whether any is a known unit's)."""
         aligned, fits, per_sensor, found = encode_step.align_light_to_known_units(
-            self.settings.select, images, per_sensor, None if given else self.known_units)
+            self.settings.select, images, per_sensor, known_units)
         photometric.warn_about_known_units(found, stacklevel=4)
         if fits is not None:
             photometric.warn_about_light(images, per_sensor, fits, stacklevel=4)
@@ -428,7 +431,8 @@ class Estimator:
         t0 = time.perf_counter()
         light, known = None, False
         if images is not None:
-            images, light, per_sensor, known = self._read_light(images, per_sensor, backgrounds is not None)
+            images, light, per_sensor, known = self._read_light(
+                images, per_sensor, None if backgrounds is not None else self.known_units)
         contacts = self._read_contacts(T, images, per_sensor)
         angles = None
         if self.settings.select.method == "ours":
@@ -439,7 +443,7 @@ class Estimator:
             angles = encode_step.read_angles(self.encoder, self.settings.select, images, contacts, T, per_sensor,
                                              per_sensor if backgrounds is not None or known else None)
         encode_seconds = time.perf_counter() - t0
-        estimate = self._estimate_checked(T, contacts, angles)
+        estimate = self._estimate_checked(T, contacts, angles, photometric.from_another_unit(light))
         steps = {k: estimate.seconds[k] for k in STEPS[1:]}
         estimate.seconds.clear()
         estimate.seconds.update(encode=encode_seconds, **steps, total=time.perf_counter() - start)
@@ -452,8 +456,10 @@ class Estimator:
         their total (the confidence counted in rank's)."""
         return self._estimate_checked(check_sensor_poses(T_world_sensors), contacts, angles)
 
-    def _estimate_checked(self, T: np.ndarray, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
-        """``estimate_encoded`` for checked sensor poses."""
+    def _estimate_checked(self, T: np.ndarray, contacts: Contacts, angles: np.ndarray | None,
+                          misread: tuple[int, ...] = ()) -> Estimate:
+        """``estimate_encoded`` for checked sensor poses; misread: the images read against another unit's
+        no-contact image (``photometric.from_another_unit``), which a ``PenetrationWarning`` names."""
         warn_if_untouched(contacts, stacklevel=4)
         check_sensors_within_reach(T, contacts.touching, self.extent, self.settings.sensors.pair_distance_tolerance)
         start = time.perf_counter()
@@ -469,7 +475,8 @@ class Estimator:
         t0 = time.perf_counter()
         ranked = self._rank(T, hypotheses.poses, hypotheses.losses, contacts)
         if len(ranked.poses) > 0:
-            warn_if_pressed_in(ranked.penetrations[0], self.settings.sensors.contact_sigma, stacklevel=4)
+            warn_if_pressed_in(ranked.penetrations[0], self.settings.sensors.contact_sigma, stacklevel=4,
+                               misread=misread)
         probability = distinct = None
         if self.confidence_model is not None and len(ranked.poses) > 0:
             probability, distinct = confidence.assess(self.confidence_model, self.spread_points,

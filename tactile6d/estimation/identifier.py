@@ -42,6 +42,7 @@ from tactile6d.estimation import rank as rank_step
 from tactile6d.estimation.estimator import Estimate, Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.perception import encode as encode_step
+from tactile6d.perception import photometric
 from tactile6d.perception.contacts import Contacts
 from tactile6d.perception.inputs import PenetrationWarning, check_sensor_poses, warn_if_pressed_in
 from tactile6d.runtime.executor import Executor, LocalExecutor, executor_from_config, process_cache
@@ -50,10 +51,12 @@ from tactile6d.runtime.executor import Executor, LocalExecutor, executor_from_co
 @dataclass(frozen=True)
 class SceneEncoding:
     """What a scene's images say, independent of the object: contacts (``Estimator.contacts``) and the
-    latents (L, latent_dim) of the images as the encoder sees them (None for the baseline)."""
+    latents (L, latent_dim) of the images as the encoder sees them (None for the baseline); misread: the images
+    read against another unit's no-contact image (``photometric.from_another_unit``)."""
 
     contacts: Contacts
     latents: np.ndarray | None
+    misread: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -198,6 +201,7 @@ class Identifier:
         calibrated: bool = True,
         distractors: Sequence[str] = (),
         own: Sequence[str] = (),
+        known_units: Mapping[str, np.ndarray] | None = None,
     ) -> Identifier:
         """Load every object's artifacts (``Estimator.from_artifacts``); objects that cannot be loaded
         are named together in one error. The library is ``objects`` (artifacts in artifacts_dir), then
@@ -206,7 +210,8 @@ class Identifier:
         cfg: the composed config (default: conf/); weights: cfg's ``identify.weights``, else the
         calibrate_identify stage's (``calibrated=False``: none, for calibrating). background: the sensors'
         no-contact image (320, 240, 3) uint8 RGB, or (L, 320, 240, 3) one per sensor in sensor order, as
-        ``Estimator.from_artifacts`` takes it (default: ``render.background``)."""
+        ``Estimator.from_artifacts`` takes it (default: ``render.background``), and known_units, your own DIGIT
+        units' no-contact images, likewise (screening workers are sent each scene as read, not the units)."""
         cfg = cfg if cfg is not None else compose_config()
         groups = {"a library object": list(objects), "a distractor": list(distractors), "one of your own": list(own)}
         names = [name for group in groups.values() for name in group]
@@ -221,7 +226,8 @@ class Identifier:
         estimators, failed = {}, []
         for name, objects_dir in library.items():
             try:
-                estimators[name] = Estimator.from_artifacts(name, artifacts_dir, cfg, data_dir, background, objects_dir)
+                estimators[name] = Estimator.from_artifacts(name, artifacts_dir, cfg, data_dir, background, objects_dir,
+                                                            known_units)
             except ArtifactError as exc:
                 failed.append(f"{name} ({exc})")
         if failed:
@@ -270,18 +276,19 @@ class Identifier:
         """``encode``, also returning the checked sensor poses (L, 4, 4): the scene's one check."""
         first = self.full[self.names[0]]
         T, images, per_sensor = first._checked_scene(T_world_sensors, images, backgrounds)
-        known = False
+        known, fits = False, None
         if images is not None:
-            images, _, per_sensor, known = first._read_light(images, per_sensor, backgrounds is not None)
+            images, fits, per_sensor, known = first._read_light(
+                images, per_sensor, None if backgrounds is not None else first.known_units)
         contacts = first._read_contacts(T, images, per_sensor)
         if self.settings.select.method != "ours":
-            return T, SceneEncoding(contacts, None)
+            return T, SceneEncoding(contacts, None, photometric.from_another_unit(fits))
         seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, per_sensor)
         # A call's own backgrounds, or known units' read against, go to the encoder; without, it reads against its
         # own (as custom encoders do).
         own = backgrounds is not None or known
         latents = first.encoder.latents(seen, per_sensor) if own else first.encoder.latents(seen)
-        return T, SceneEncoding(contacts, latents)
+        return T, SceneEncoding(contacts, latents, photometric.from_another_unit(fits))
 
     def candidate(self, name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:
         """One object's screened estimate and features for an encoded scene, its sensor poses (L, 4, 4) as
@@ -377,7 +384,7 @@ class Identifier:
         winner = found[order[0]]
         if winner.matched and winner.estimate is not None:
             warn_if_pressed_in(winner.estimate.penetrations[0], self.full[winner.name].settings.sensors.contact_sigma,
-                               stacklevel=3)
+                               stacklevel=3, misread=encoding.misread)
         ranked = tuple(RankedObject(found[i].name, float(probabilities[i]), float(scores[i]), found[i]) for i in order)
         return Identification(ranked, refined, seconds)
 

@@ -343,7 +343,7 @@ class Tracker:
         fresh_light = self._light_is_stale(len(T))
         images = raw
         if fresh_light:
-            images, self._light = est._aligned(raw, per_sensor)
+            images, self._light = est._read_light(raw, per_sensor, None)[:2]
             self._frames_since_light = 0
         if frame.ahead is not None and (fresh_light or frame.ahead.light is not self._light):
             cancel_unless_interrupted(frame.ahead.futures)  # read under another light: read it again

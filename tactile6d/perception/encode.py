@@ -31,6 +31,7 @@ from tactile6d.perception import photometric
 from tactile6d.perception.autoencoder import encode, latent_angles, load_checkpoint
 from tactile6d.perception.contact_patch import PatchModel, centre_contact, image_to_patch, load_model
 from tactile6d.perception.contacts import Contacts, patches_to_contacts, sensors_to_landmark_contacts
+from tactile6d.perception.inputs import check_backgrounds
 
 
 def load_background(cfg: Mapping, data_dir: str | Path | None = None) -> np.ndarray:
@@ -63,20 +64,45 @@ KNOWN_UNITS = {
 class KnownUnits:
     """The no-contact images of the DIGIT units in ``KNOWN_UNITS``, (320, 240, 3) uint8 RGB by name, each read as
     ``load_background`` reads ``render.background`` (from ``data_dir``, else the data store of ``cfg``'s ``paths``),
-    when first asked for: only an image that disagrees with its no-contact image needs them."""
+    when first asked for: only an image that disagrees with its no-contact image needs them. ``own``: the user's
+    units' no-contact images, name -> (320, 240, 3) uint8 RGB, known beside them (a lab's drawer of DIGITs,
+    each recorded once); InputError for one that is not a no-contact image or whose name is already known."""
 
-    def __init__(self, cfg: Mapping, data_dir: str | Path | None = None):
+    def __init__(self, cfg: Mapping, data_dir: str | Path | None = None,
+                 own: Mapping[str, np.ndarray] | None = None):
         self._paths = cfg["paths"]
         self._data_dir = data_dir
+        self._own = check_unit_images(own or {})
         self._images: dict[str, np.ndarray] | None = None
 
     def images(self) -> dict[str, np.ndarray]:
-        """Name -> no-contact image (320, 240, 3) uint8 RGB, read on the first call."""
+        """Name -> no-contact image (320, 240, 3) uint8 RGB, the data directory's units first, read on the first
+        call."""
         if self._images is None:
             self._images = {name: load_background({"render": {"background": path}, "paths": self._paths},
                                                   self._data_dir)
                             for name, path in KNOWN_UNITS.items()}
+            self._images.update(self._own)
         return self._images
+
+
+def check_unit_images(units: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Units' no-contact images, name -> (320, 240, 3) uint8 RGB, checked as a ``background`` is
+    (``inputs.check_backgrounds``; the error names the unit) and against the names of ``KNOWN_UNITS`` -> a dict of
+    them."""
+    out = {}
+    for name, image in units.items():
+        if name in KNOWN_UNITS:
+            raise InputError(f"unit name {name!r} is already a known unit's; give your unit another name")
+        image = np.asarray(image)
+        if image.ndim != 3:
+            raise InputError(f"unit {name!r}: its no-contact image has shape {image.shape}, one (320, 240, 3) "
+                             "image per unit")
+        try:
+            out[str(name)] = check_backgrounds(image)
+        except InputError as exc:
+            raise InputError(f"unit {name!r}: {exc}") from exc
+    return out
 
 
 def known_unit_images(units: KnownUnits | Mapping[str, np.ndarray]) -> Mapping[str, np.ndarray]:

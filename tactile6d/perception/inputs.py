@@ -13,6 +13,7 @@ sensor is warned about: no pose fits the sensor poses as given (an inverted pose
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -301,7 +302,8 @@ def check_sensors_within_reach(T_world_sensors: np.ndarray, touching: np.ndarray
 
 
 class PenetrationWarning(UserWarning):
-    """The best pose presses deep into a sensor: the sensor poses are likely wrong (``warn_if_pressed_in``)."""
+    """The best pose presses deep into a sensor: the sensor poses are likely wrong, or an image's contact misread
+    against another unit's no-contact image (``warn_if_pressed_in``)."""
 
 
 # How far (m) beyond the sensor poses' declared error (the ranking's penetration allowance) the best pose may
@@ -310,17 +312,27 @@ class PenetrationWarning(UserWarning):
 PENETRATION_WARNING = 0.005
 
 
-def warn_if_pressed_in(penetrations: np.ndarray, allowance: float, stacklevel: int = 4) -> None:
+def warn_if_pressed_in(penetrations: np.ndarray, allowance: float, stacklevel: int = 4,
+                       misread: Sequence[int] = ()) -> None:
     """A ``PenetrationWarning`` when the best pose's deepest penetration, penetrations (L,) m per sensor (NaN
     for none), exceeds ``allowance`` (m, ``SensorSettings.contact_sigma``) by more than ``PENETRATION_WARNING``:
-    no pose explains the contacts without pressing into a sensor. stacklevel: as ``warnings.warn``'s."""
+    no pose explains the contacts without pressing into a sensor. misread: the sensors whose images were read
+    against a no-contact image of another unit (``photometric.UnitWarning``), whose contacts are then the likelier
+    cause, which the warning names instead of the sensor poses. stacklevel: as ``warnings.warn``'s."""
     depths = np.nan_to_num(np.asarray(penetrations, dtype=np.float64), nan=0.0)
     if depths.size == 0 or depths.max() <= allowance + PENETRATION_WARNING:
         return
     i = int(np.argmax(depths))
+    if misread:
+        several = len(misread) > 1
+        cause = (f"Image{'s' if several else ''} {', '.join(str(j) for j in misread)} "
+                 f"{'were' if several else 'was'} read against another unit's no-contact image (the warning above): "
+                 f"the contacts read from {'them' if several else 'it'} are the likelier fault, not the sensor "
+                 "poses; pass each unit's own no-contact image")
+    else:
+        cause = ("Check that each pose is T_world_sensor (the sensor's frame in the world, not its inverse), in "
+                 "metres, in the DIGIT frame of docs/design.md, and in the images' order")
     warnings.warn(f"the best pose presses {1e3 * depths[i]:.1f} mm into sensor {i}'s body, "
                   f"{1e3 * (depths[i] - allowance):.1f} mm more than the sensor poses' declared error allows "
                   "(sensors.pose_sigma_mm, sensors.pose_sigma_deg): no pose fits the contacts without pressing into a "
-                  "sensor, so the estimate is likely wrong. Check that each pose is T_world_sensor (the sensor's "
-                  "frame in the world, not its inverse), in metres, in the DIGIT frame of docs/design.md, and in "
-                  "the images' order", PenetrationWarning, stacklevel=stacklevel)
+                  f"sensor, so the estimate is likely wrong. {cause}", PenetrationWarning, stacklevel=stacklevel)

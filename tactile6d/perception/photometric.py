@@ -606,6 +606,12 @@ class UnitWarning(LightWarning):
     """An image's no-contact image looks like another unit's (``unit_problems``)."""
 
 
+def from_another_unit(fits: list[LightFit] | None) -> tuple[int, ...]:
+    """The images whose no-contact image looks like another unit's (``LightFit.from_another_unit``), by index in
+    fits as ``align_images`` returned them; none for None (the light not aligned)."""
+    return tuple(i for i, fit in enumerate(fits or ()) if fit.from_another_unit)
+
+
 class KnownUnitWarning(UnitWarning):
     """An image whose no-contact image looked like another unit's was read against a known unit's that it agrees
     with (``known_units_agreeing``)."""
