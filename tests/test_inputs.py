@@ -334,8 +334,8 @@ def test_a_best_pose_that_presses_deep_into_a_sensor_is_warned_about():
                                                        r"not its inverse\)"):
         inputs.warn_if_pressed_in(np.array([0.0057, 0.0053, 0.0096]), allowance)
     # Where images were read against another unit's no-contact image, their contacts are the likelier fault.
-    with pytest.warns(inputs.PenetrationWarning, match=r"Image 2 was read against another unit's no-contact image "
-                                                       r".* the contacts read from it are the likelier fault") as caught:
+    with pytest.warns(inputs.PenetrationWarning, match=r"Image 2 was read against another unit's no-contact "
+                                                       r"image .* the contacts read from it") as caught:
         inputs.warn_if_pressed_in(np.array([0.0057, 0.0053, 0.0096]), allowance, misread=(2,))
     assert "T_world_sensor" not in str(caught[0].message)
     with pytest.warns(inputs.PenetrationWarning, match=r"Images 0, 2 were read against .* read from them"):

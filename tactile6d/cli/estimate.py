@@ -6,9 +6,9 @@ frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``
 on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
 order), which wins. With neither, the default (``render.background``) is used, and an image that looks like
 another unit's against it is read against the known unit's it agrees with (``encode.KNOWN_UNITS``, and your
-own units' given with ``--known-units``), as a ``warning:`` line says. ``--sensor-offsets FILE`` corrects the sensor poses by each sensor's mounting offset
-(``tactile6d calibrate-sensors``) before anything reads them. One sensor only is estimated with a
-``warning:`` line on stderr (the pose is under-determined). Scenes are given with
+own units' given with ``--known-units``), as a ``warning:`` line says. ``--sensor-offsets FILE`` corrects the
+sensor poses by each sensor's mounting offset (``tactile6d calibrate-sensors``) before anything reads them. One
+sensor only is estimated with a ``warning:`` line on stderr (the pose is under-determined). Scenes are given with
 ``--scene DIR [DIR ...]`` and/or ``--scenes-root DIR`` (every folder under DIR that holds a
 ``poses_sensors.txt``, in natural order: ``triplet_2`` before ``triplet_10``). All scenes run in one
 process; each object's artifacts are read once, from ``--artifacts`` (default: the config's

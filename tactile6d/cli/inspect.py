@@ -5,10 +5,10 @@ estimates, and for finding out why an estimate went wrong. The scene folder is i
 ``tactile6d estimate`` (``poses_sensors.txt``, ``Image_heatmap_<i>.png``, optionally ``background_<i>.png``)
 and the no-contact images are chosen as it chooses them (``--background``, else the folder's
 ``background_<i>.png``, else ``render.background``, against which an image that looks like another unit's is read
-against the known unit's it agrees with: ``encode.KNOWN_UNITS`` and yours, ``--known-units``). The reading steps of ``Estimator.estimate`` then run on
-it (``read_scene``): the light alignment (``perception.encode.align_light``) and the contact patch of each
-image as aligned (``perception.contact_patch.image_to_patch``), which needs only the patch calibration of
-``--artifacts`` (stage calibrate_patch), no object. Printed per sensor:
+against the known unit's it agrees with: ``encode.KNOWN_UNITS`` and yours, ``--known-units``). The reading steps
+of ``Estimator.estimate`` then run on it (``read_scene``): the light alignment (``perception.encode.align_light``)
+and the contact patch of each image as aligned (``perception.contact_patch.image_to_patch``), which needs only the
+patch calibration of ``--artifacts`` (stage calibrate_patch), no object. Printed per sensor:
 
 - the contact: where on the gel (the pixel, and mm from the gel's centre), how deep the
   object presses, over how much of the image, how far the surface there is tilted from the camera's axis;

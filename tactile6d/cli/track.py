@@ -18,8 +18,8 @@ Input, one of:
 frames, which must show nothing touching (``tactile6d.perception.stream_background``; a recording started
 before the fingers close). Without either, the tracker reads a known unit's images against its no-contact image
 (``encode.KNOWN_UNITS``, and your own units' given with ``--known-units``; a ``warning:`` line names the unit).
-When a no-contact image looked like another unit's
-and no known unit's agreed, a ``hint:`` line names ``first-frames``.
+When a no-contact image looked like another unit's and no known unit's agreed, a ``hint:`` line names
+``first-frames``.
 
 ``--sensor-offsets FILE`` corrects every frame's sensor poses by each sensor's mounting offset (``tactile6d
 calibrate-sensors``) before the tracker sees them.
