@@ -38,6 +38,12 @@ with), drawn from ``--seed``:
   press to the background), clipped to 8 bits; no no-contact image passed, as a user who never recorded one
   gives it (the issue's "another DIGIT unit, no-contact image not passed"); ``other-unit-own``: the same with that
   unit's no-contact image passed.
+- ``drawer``: a hand of units from a lab's drawer: each sensor's image moved (as for ``other-unit``) onto its own
+  unit, three distinct units per scene drawn from six (``drawer_units``: the data directory's two units' no-contact
+  images turned half a turn and mirrored either way, six LED layouts that agree with none of the others nor with
+  the two), no no-contact image passed; ``drawer-known``: the same images with the six given as known units
+  (``tactile6d estimate --known-units``); ``drawer-own``: each sensor's own unit's no-contact image passed. The
+  three draw the same units.
 
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
 the evaluation scores it; one JSON line per condition: the positional error of the best pose, mean and
@@ -72,13 +78,13 @@ from tactile6d.evaluation import scoring
 from tactile6d.evaluation.metric_table import ERROR_KEYS
 from tactile6d.evaluation.sensor_subsets import estimate_and_score
 from tactile6d.perception import photometric
-from tactile6d.perception.encode import load_background
+from tactile6d.perception.encode import KnownUnits, load_background
 from tactile6d.runtime.script_args import parse_with_overrides
 from tactile6d.sim import perturb, scenes
 from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90", "slight", "recorded+1", "recorded-1",
-              "shading", "shading10", "other-unit", "other-unit-own")
+              "shading", "shading10", "other-unit", "other-unit-own", "drawer", "drawer-known", "drawer-own")
 OTHER_UNIT = "digit/tacto/bg_digit_240_320.jpg"  # TACTO's example DIGIT's no-contact image, in the data directory
 ISSUE_CONDITIONS = CONDITIONS[:4]  # issue 34's table: the default
 JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60, "jpeg90": 90}
@@ -92,17 +98,46 @@ SHADING = {"shading": 0.05, "shading10": 0.10}  # the ramp's gain change from th
 ADI_WITHIN = 0.02  # m: the share of scenes whose best pose is this close (ADI) is reported
 
 
+DRAWER_CONDITIONS = ("drawer", "drawer-known", "drawer-own")
+
+
+def drawer_units(units: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Six units' no-contact images (320, 240, 3) uint8 RGB for the ``drawer`` conditions, from units (name -> image):
+    each turned half a turn, mirrored left-right and mirrored up-down (the LEDs laid out otherwise), named so."""
+    flips = {"turned": (slice(None, None, -1), slice(None, None, -1)), "mirrored": (slice(None), slice(None, None, -1)),
+             "flipped": (slice(None, None, -1), slice(None))}
+    return {f"{name} {how}": np.ascontiguousarray(image[index]) for name, image in units.items()
+            for how, index in flips.items()}
+
+
+def move_onto_units(images: np.ndarray, background: np.ndarray, units: np.ndarray) -> np.ndarray:
+    """Images (..., 320, 240, 3) uint8 rendered over background (320, 240, 3), each moved onto its unit (units of
+    the images' shape, or broadcast to it): its difference from the background added to the unit's no-contact image,
+    as both renderers add a press to the background, clipped to 8 bits."""
+    moved = images.astype(np.int16) - background.astype(np.int16) + units.astype(np.int16)
+    return np.clip(moved, 0, 255).astype(np.uint8)
+
+
 def real_set_up(scene_set: scenes.SceneSet, condition: str, background: np.ndarray,
-                rng: np.random.Generator, other_unit: np.ndarray | None = None) -> scenes.SceneSet:
+                rng: np.random.Generator, other_unit: np.ndarray | None = None,
+                drawer: dict[str, np.ndarray] | None = None) -> scenes.SceneSet:
     """``scene_set`` under one of CONDITIONS (module docstring); background (320, 240, 3) uint8 RGB, the
     no-contact image its images were rendered over; other_unit (320, 240, 3) uint8 RGB, ``OTHER_UNIT``'s (for the
-    ``other-unit`` conditions). The truth (object poses, contacts) is unchanged."""
+    ``other-unit`` conditions); drawer: name -> (320, 240, 3) uint8 RGB, the units of the ``drawer`` conditions, which
+    record each sensor's unit's index in ``extra["unit"]`` (S, L). The truth (object poses, contacts) is unchanged."""
     if condition == "clean":
         return scene_set
     if condition in ("other-unit", "other-unit-own"):
-        moved = scene_set.images.astype(np.int16) - background.astype(np.int16) + other_unit.astype(np.int16)
         own = np.broadcast_to(other_unit, scene_set.images.shape) if condition == "other-unit-own" else None
-        return replace(scene_set, images=np.clip(moved, 0, 255).astype(np.uint8), backgrounds=own)
+        return replace(scene_set, images=move_onto_units(scene_set.images, background, other_unit), backgrounds=own)
+    if condition in DRAWER_CONDITIONS:
+        n_scenes, n_sensors = scene_set.images.shape[:2]
+        library = np.stack(list(drawer.values()))
+        drawn = np.stack([rng.choice(len(library), n_sensors, replace=False) for _ in range(n_scenes)])
+        units = library[drawn]
+        return replace(scene_set, images=move_onto_units(scene_set.images, background, units),
+                       backgrounds=units if condition == "drawer-own" else None,
+                       extra={**scene_set.extra, "unit": drawn})
     if condition == "noise":
         return replace(scene_set, images=perturb.add_camera_noise(scene_set.images, NOISE_STD, rng))
     if condition == "light":
@@ -219,14 +254,23 @@ def main() -> int:
     references = {o: scoring.load_object_reference(args.artifacts, o) for o in estimators}
     background = next(iter(estimators.values())).no_contact  # the one the set was rendered over: the default
     other_unit = load_background({"render": {"background": OTHER_UNIT}, "paths": cfg.paths})
+    drawer = drawer_units(KnownUnits(cfg).images())
+    with_drawer = None  # the estimators that know the drawer's units, for drawer-known
     for condition in args.conditions:
-        scene_set = real_set_up(clean, condition, background, np.random.default_rng((args.seed, CONDITIONS.index(condition))),
-                                other_unit)
+        # The drawer's three conditions draw the same units.
+        draw = "drawer" if condition in DRAWER_CONDITIONS else condition
+        scene_set = real_set_up(clean, condition, background, np.random.default_rng((args.seed, CONDITIONS.index(draw))),
+                                other_unit, drawer)
+        chosen = estimators
+        if condition == "drawer-known":
+            with_drawer = with_drawer or {o: Estimator.from_artifacts(o, args.artifacts, cfg, known_units=drawer)
+                                          for o in estimators}
+            chosen = with_drawer
         rows, failed = {key: [] for key in ERROR_KEYS}, 0
         for s, obj in enumerate(clean.objects.tolist()):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                scored = estimate_and_score(estimators[obj], scene_set.T_world_sensors[s], scene_set.images[s],
+                scored = estimate_and_score(chosen[obj], scene_set.T_world_sensors[s], scene_set.images[s],
                                             scene_set.T_world_object[s], references[obj], scene_set.backgrounds_of(s))
             failed += scored.seconds is None
             for key, values in rows.items():

@@ -87,6 +87,32 @@ def test_other_unit_moves_each_press_onto_the_other_units_no_contact_image(condi
     assert out.T_world_sensors is s.T_world_sensors
 
 
+def test_the_drawer_is_each_unit_turned_and_mirrored_either_way():
+    a = np.random.default_rng(1).integers(0, 256, (320, 240, 3), dtype=np.uint8)
+    drawer = check.drawer_units({"a": a, "b": a // 2})
+    assert list(drawer) == ["a turned", "a mirrored", "a flipped", "b turned", "b mirrored", "b flipped"]
+    np.testing.assert_array_equal(drawer["a turned"], a[::-1, ::-1])
+    np.testing.assert_array_equal(drawer["a mirrored"], a[:, ::-1])
+    np.testing.assert_array_equal(drawer["b flipped"], (a // 2)[::-1])
+
+
+@pytest.mark.parametrize("condition", check.DRAWER_CONDITIONS)
+def test_drawer_moves_each_sensor_onto_its_own_unit_of_the_drawer(condition):
+    s = small_set()
+    drawer = {f"u{k}": np.full((320, 240, 3), 60 + 20 * k, np.uint8) for k in range(6)}
+    out = check.real_set_up(s, condition, BACKGROUND, np.random.default_rng(3), drawer=drawer)
+    drawn = out.extra["unit"]
+    assert drawn.shape == (3, 3) and all(len(set(row)) == 3 for row in drawn)  # three distinct units a scene
+    units = np.stack(list(drawer.values()))[drawn]
+    np.testing.assert_array_equal(out.images, np.clip(s.images.astype(int) - BACKGROUND + units, 0, 255))
+    if condition == "drawer-own":
+        np.testing.assert_array_equal(out.backgrounds, units)
+    else:
+        assert out.backgrounds is None  # nothing passed: the default, and the known units when given
+    again = check.real_set_up(s, "drawer", BACKGROUND, np.random.default_rng(3), drawer=drawer)
+    np.testing.assert_array_equal(again.extra["unit"], drawn)  # the same rng draws the same units
+
+
 def test_kinematic_moves_the_sensor_poses_by_the_declared_sigmas_and_keeps_the_images():
     s = small_set(n=3, L=3)
     out = check.real_set_up(s, "kinematic", BACKGROUND, np.random.default_rng(0))
