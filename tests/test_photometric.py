@@ -584,3 +584,48 @@ def test_an_image_of_another_unit_is_matched_to_the_known_unit_it_agrees_with(tw
         assert photometric.known_units_agreeing(images, own_fits, {other: two_units[other][1]}) == {}
         with pytest.warns(photometric.KnownUnitWarning, match=rf"image 0: .* agrees with {unit}'s on \d+ % of its"):
             photometric.warn_about_known_units({0: found[0]})
+
+
+def test_unit_likeness_is_the_rank_correlation_of_the_block_means_least_over_the_channels():
+    """Against a naive Spearman's rho, channel by channel: the correlation of scipy's ranks, ties ranked in the
+    blocks' order as ``unit_likeness`` ranks them."""
+    from scipy.stats import rankdata
+
+    def spearman(a, b):
+        return np.corrcoef(rankdata(a, method="ordinal"), rankdata(b, method="ordinal"))[0, 1]
+
+    rng = np.random.default_rng(4)
+    image = rng.integers(0, 256, (320, 240, 3), dtype=np.uint8)
+    units = {"a": rng.integers(0, 256, (320, 240, 3), dtype=np.uint8),
+             "b": np.clip(image.astype(int) + rng.integers(-30, 30, image.shape), 0, 255).astype(np.uint8)}
+    mine = photometric.block_means(image, photometric.LIKENESS_BLOCK)
+    likeness = photometric.unit_likeness(image, units)
+    for name, unit in units.items():
+        theirs = photometric.block_means(unit, photometric.LIKENESS_BLOCK)
+        naive = min(spearman(mine[..., c].ravel(), theirs[..., c].ravel()) for c in range(3))
+        assert likeness[name] == pytest.approx(naive, abs=1e-12)
+    assert likeness["b"] > 0.9 > 0.2 > abs(likeness["a"])
+    # A change of gain and gamma keeps the order of brightness: the likeness of a unit to itself stays 1.
+    drifted = np.clip(255 * (image / 255.0) ** 1.15 * 0.9, 0, 255).astype(np.uint8)
+    assert photometric.unit_likeness(drifted, {"a": image})["a"] > 0.99
+
+
+@pytest.mark.slow
+def test_a_drawer_of_units_is_screened_by_likeness_before_it_is_fitted(two_units, monkeypatch):
+    """Among many known units only the SCREENED_UNITS most alike each image are fitted, and its own is among them:
+    the same answer as fitting every unit, for a fraction of the fits."""
+    units = {"paper": two_units["paper"][1], "tacto": two_units["tacto"][1]}
+    for name, background in list(units.items()):
+        units[f"{name} turned"] = np.ascontiguousarray(background[::-1, ::-1])
+        units[f"{name} mirrored"] = np.ascontiguousarray(background[:, ::-1])
+    images, own = two_units["tacto"]
+    fits = [photometric.fit_light(im, two_units["paper"][1]) for im in images]
+    fitted = []
+    real_fit = photometric.fit_light
+    monkeypatch.setattr(photometric, "fit_light", lambda image, background: fitted.append(1) or real_fit(image, background))
+    found = photometric.known_units_agreeing(images, fits, units)
+    assert {i: name for i, (name, _) in found.items()} == {0: "tacto", 1: "tacto", 2: "tacto"}
+    assert len(fitted) == len(images) * photometric.SCREENED_UNITS < len(images) * len(units)
+    monkeypatch.setattr(photometric, "SCREENED_UNITS", len(units))  # every unit fitted: the same answer
+    everything = photometric.known_units_agreeing(images, fits, units)
+    assert {i: (n, f.agreement) for i, (n, f) in everything.items()} == {i: (n, f.agreement) for i, (n, f) in found.items()}
