@@ -103,7 +103,8 @@ DRAWER_CONDITIONS = ("drawer", "drawer-known", "drawer-own")
 
 def drawer_units(units: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Six units' no-contact images (320, 240, 3) uint8 RGB for the ``drawer`` conditions, from units (name -> image):
-    each turned half a turn, mirrored left-right and mirrored up-down (the LEDs laid out otherwise), named so."""
+    each turned half a turn ("turned"), mirrored left-right ("mirrored") and up-down ("flipped"): the LEDs laid out
+    otherwise."""
     flips = {"turned": (slice(None, None, -1), slice(None, None, -1)), "mirrored": (slice(None), slice(None, None, -1)),
              "flipped": (slice(None, None, -1), slice(None))}
     return {f"{name} {how}": np.ascontiguousarray(image[index]) for name, image in units.items()
