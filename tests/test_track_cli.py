@@ -314,6 +314,32 @@ def test_no_contact_images_from_the_streams_first_frames(capsys, monkeypatch, ar
     assert len(passed) == 5 + F and all(np.array_equal(b, learned) for b in passed)
 
 
+@pytest.mark.slow
+def test_your_own_units_are_matched_at_the_first_frame(capsys, monkeypatch, artifacts, recording, tmp_path, data_dir):
+    """``--known-units``: the recording's flat no-contact colour, a unit the data directory does not know, given as
+    one of the user's; the stream, passed without no-contact images, is read against it, the warning names it, and
+    the poses are those with it passed. Beside --background it is an error."""
+    from test_estimator import write_tiny_autoencoder
+
+    from tactile6d.data.hdf5 import write_tactile_image
+
+    write_tiny_autoencoder(artifacts, 500, OBJECT)
+    monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
+    (tmp_path / "units").mkdir()
+    write_tactile_image(tmp_path / "units" / "lab_flat.png", NO_CONTACT)
+    common = ["--object", OBJECT, "--sequence", str(recording["sequence"]), "--artifacts", str(artifacts), "--json"]
+    code, known, err = run(capsys, *common, "--known-units", str(tmp_path / "units"), "select.N=500")
+    assert code == 0, err
+    named = [line for line in err.splitlines() if "agrees with lab_flat's" in line]
+    assert [line.split(": ")[1] for line in named] == ["image 0", "image 1", "image 2"]  # decided once
+    code, given, err = run(capsys, *common, "--background", str(tmp_path / "units" / "lab_flat.png"), "select.N=500")
+    assert code == 0 and "lab_flat" not in err
+    assert [f["pose"] for f in json_frames(known)] == [f["pose"] for f in json_frames(given)]
+    code, _, err = run(capsys, *common, "--known-units", str(tmp_path / "units"), "--background",
+                       str(tmp_path / "units" / "lab_flat.png"), "select.N=500")
+    assert code == 2 and "give --background or --known-units, not both" in err
+
+
 @pytest.mark.parametrize("n_still,count,message", [
     (0, 5, f"the input holds {F} frames, fewer than --background-frames 5"),
     (4, 6, r"sensor \d's stream: frame 4 of the first 6 shows a contact against the others"),
