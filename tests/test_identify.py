@@ -261,6 +261,14 @@ def test_the_command_names_unknown_objects_and_missing_scenes(tmp_path, capsys):
     assert cli_main(["identify", "--scene", str(tmp_path / "missing"), "--objects", "002_master_chef_can",
                      "--artifacts", str(tmp_path)]) == 2
     assert "error:" in capsys.readouterr().err
+    # Known units are matched only where no no-contact image is passed: beside --background, an error.
+    from tactile6d.data.hdf5 import write_tactile_image
+
+    write_tactile_image(tmp_path / "unit_7.png", np.full((320, 240, 3), (90, 100, 95), np.uint8))
+    assert cli_main(["identify", "--scene", str(tmp_path), "--objects", "002_master_chef_can",
+                     "--artifacts", str(tmp_path), "--background", str(tmp_path / "unit_7.png"),
+                     "--known-units", str(tmp_path / "unit_7.png")]) == 2
+    assert "give --background or --known-units, not both" in capsys.readouterr().err
 
 
 # ---- from artifacts, in this process and in worker processes -----------------------------------
