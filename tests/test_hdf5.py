@@ -166,9 +166,9 @@ def test_scene_dir_errors(tmp_path):
     write_scene(tmp_path / "few", n_sensors=3, n_images=2)
     with pytest.raises(InputError, match="Image_heatmap_2.png missing"):
         read_scene_dir(tmp_path / "few")
-    write_scene(tmp_path / "small", shape=(160, 120, 3))
-    with pytest.raises(InputError, match="240 wide x 320 high"):
-        read_scene_dir(tmp_path / "small")
+    write_scene(tmp_path / "square", shape=(160, 160, 3))
+    with pytest.raises(InputError, match="160 wide x 160 high, a DIGIT image is 240 wide x 320 high"):
+        read_scene_dir(tmp_path / "square")
     (tmp_path / "nopose").mkdir()
     with pytest.raises(InputError, match="poses_sensors.txt missing"):
         read_scene_dir(tmp_path / "nopose")

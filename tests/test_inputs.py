@@ -124,9 +124,10 @@ def test_a_raw_camera_frame_is_named_as_one_everywhere_an_image_is_read(tmp_path
         contact_patch.check_image(raw, "no_contact")
     with pytest.raises(InputError, match=r"image 0 is 240 wide x 320 high.*it has 4 channels"):
         inputs.check_images([np.zeros((320, 240, 4), np.uint8)], 1)
-    with pytest.raises(InputError, match=r"image 0 is 120 wide x 160 high, a DIGIT image is 240 wide x 320 high "
-                                         r"\(array shape \(320, 240, 3\)\)$"):
-        inputs.check_images([np.zeros((160, 120, 3), np.uint8)], 1)
+    with pytest.raises(InputError, match=r"image 0 is 120 wide x 150 high, a DIGIT image is 240 wide x 320 high "
+                                         r"\(array shape \(320, 240, 3\)\); an image of its proportions at another "
+                                         r"size .* is read resized$"):
+        inputs.check_images([np.zeros((150, 120, 3), np.uint8)], 1)
 
 
 def test_a_background_whose_red_and_blue_agree_never_calls_an_image_bgr():

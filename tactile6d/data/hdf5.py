@@ -189,6 +189,21 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
 TACTILE_IMAGE_SHAPE = (320, 240, 3)  # rows (sensor z) x columns (sensor y) x RGB
 
 
+class ImageSizeWarning(UserWarning):
+    """A tactile or no-contact image given at another size than the DIGIT's 240 x 320 was read resized to it
+    (``to_tactile_size``); name, width and height say which and from what, for a caller that tells several at once."""
+
+    def __init__(self, name: str, width: int, height: int):
+        self.name, self.width, self.height = name, int(width), int(height)
+        super().__init__(f"{name} is {self.size_text()}")
+
+    def size_text(self) -> str:
+        """'W wide x H high: read resized to ...', what the warning says of any image of its size."""
+        how = ("averaged down" if self.height > TACTILE_IMAGE_SHAPE[0]
+               else "enlarged, bilinear: less detail than a 240 x 320 image")
+        return f"{self.width} wide x {self.height} high: read resized to the DIGIT's 240 x 320 ({how})"
+
+
 def tactile_shape_problem(shape: tuple[int, ...], name: str) -> str | None:
     """An image's shape -> None if it is a DIGIT image's (320, 240, 3), else the sentence that says what is wrong.
 
@@ -201,7 +216,7 @@ def tactile_shape_problem(shape: tuple[int, ...], name: str) -> str | None:
         return None
     size = f"{name} is {shape[1]} wide x {shape[0]} high" if len(shape) >= 2 else f"{name} has shape {shape}"
     problem = f"{size}, a DIGIT image is 240 wide x 320 high (array shape (320, 240, 3))"
-    if shape[:2] == TACTILE_IMAGE_SHAPE[1::-1]:
+    if len(shape) == 3 and shape[2] == 3 and shape[1] * 3 == shape[0] * 4:
         problem += (": it looks rotated by 90 degrees, as the camera's raw frame is; digit-interface's "
                     "Digit.get_frame() returns np.rot90(frame), which is the image to pass")
     elif len(shape) == 3 and shape[:2] == TACTILE_IMAGE_SHAPE[:2]:
@@ -211,8 +226,55 @@ def tactile_shape_problem(shape: tuple[int, ...], name: str) -> str | None:
     return problem
 
 
+def resizable_to_tactile(shape: tuple[int, ...]) -> bool:
+    """Whether an image of ``shape`` is a DIGIT image at another resolution: (H, W, 3), H:W = 4:3 as (320, 240, 3)'s,
+    but not that size (a DIGIT streamed at VGA gives 640 x 480 once turned; TACTO renders 160 x 120 by default)."""
+    shape = tuple(int(n) for n in shape)
+    return (len(shape) == 3 and shape[2] == 3 and shape[0] * 3 == shape[1] * 4 and shape[0] >= 4
+            and shape != TACTILE_IMAGE_SHAPE)
+
+
+def resize_to_tactile(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 with H:W = 4:3 (``resizable_to_tactile``) -> (320, 240, 3) uint8: each output pixel the mean of
+    the pixels it covers when shrinking (OpenCV's INTER_AREA: a 2 x 2 mean from 640 x 480), bilinear when enlarging.
+    The same field of view at another resolution, so the gel's millimetres per pixel come out as the DIGIT's."""
+    import cv2
+
+    image = np.ascontiguousarray(image)
+    shrink = image.shape[0] > TACTILE_IMAGE_SHAPE[0]
+    return cv2.resize(image, TACTILE_IMAGE_SHAPE[1::-1], interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+def tactile_size_problem(shape: tuple[int, ...], name: str) -> str | None:
+    """``tactile_shape_problem``, but None for another size of the DIGIT image's proportions
+    (``resizable_to_tactile``), which ``to_tactile_size`` resizes; the sentence says so where it applies."""
+    if resizable_to_tactile(shape):
+        return None
+    problem = tactile_shape_problem(shape, name)
+    if problem is not None and len(shape) == 3 and shape[2] == 3 and "rotated" not in problem:
+        problem += "; an image of its proportions at another size (e.g. 480 wide x 640 high) is read resized"
+    return problem
+
+
+def to_tactile_size(image: np.ndarray, name: str) -> np.ndarray:
+    """An image -> (320, 240, 3): as it is at the DIGIT's size, resized (``resize_to_tactile``) with an
+    ``ImageSizeWarning`` at another size of its proportions; InputError naming it otherwise."""
+    import warnings
+
+    from tactile6d.core.errors import InputError
+
+    problem = tactile_size_problem(image.shape, name)
+    if problem is not None:
+        raise InputError(problem)
+    if image.shape == TACTILE_IMAGE_SHAPE:
+        return image
+    warnings.warn(ImageSizeWarning(name, image.shape[1], image.shape[0]), stacklevel=3)
+    return resize_to_tactile(image)
+
+
 def read_tactile_image(path: str | os.PathLike) -> np.ndarray:
-    """A DIGIT image file -> (320, 240, 3) uint8 RGB. InputError if unreadable or of another size."""
+    """A DIGIT image file -> (320, 240, 3) uint8 RGB, resized from another size of its proportions
+    (``to_tactile_size``). InputError if unreadable or of other proportions."""
     import cv2
 
     from tactile6d.core.errors import InputError
@@ -220,10 +282,7 @@ def read_tactile_image(path: str | os.PathLike) -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise InputError(f"{path}: not a readable image")
-    problem = tactile_shape_problem(image.shape, str(path))
-    if problem is not None:
-        raise InputError(problem)
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return to_tactile_size(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), str(path))
 
 
 def write_tactile_image(path: str | os.PathLike, image: np.ndarray) -> None:

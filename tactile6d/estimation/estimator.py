@@ -335,16 +335,16 @@ class Estimator:
         trusted (``photometric.warn_about_light``). backgrounds as for ``estimate``."""
         if images is None:
             return None, None
-        return self._read_light(images, self.backgrounds(len(images), backgrounds), None)[:2]
+        return self._read_light(images, self.backgrounds(len(images), backgrounds), False)[:2]
 
-    def _read_light(self, images, per_sensor, known_units: encode_step.KnownUnits | Mapping[str, np.ndarray] | None
+    def _read_light(self, images, per_sensor, match_known_units: bool
                     ) -> tuple[np.ndarray, list[photometric.LightFit] | None, np.ndarray | None, bool]:
-        """``align_light`` on checked images and no-contact images per sensor, an image whose no-contact image looks
-        like another unit's read instead against the one of ``known_units`` it agrees with (None: none; a
-        ``photometric.KnownUnitWarning``). -> (images aligned, their fits, the no-contact images per sensor read
-        against, whether any is a known unit's)."""
+        """``align_light`` on checked images and no-contact images per sensor; with ``match_known_units`` (a call that
+        passed no no-contact images of its own), an image whose no-contact image looks like another unit's is read
+        instead against the one of ``known_units`` it agrees with (a ``photometric.KnownUnitWarning``). -> (images
+        aligned, their fits, the no-contact images per sensor read against, whether any is a known unit's)."""
         aligned, fits, per_sensor, found = encode_step.align_light_to_known_units(
-            self.settings.select, images, per_sensor, known_units)
+            self.settings.select, images, per_sensor, self.known_units if match_known_units else None)
         photometric.warn_about_known_units(found, stacklevel=4)
         if fits is not None:
             photometric.warn_about_light(images, per_sensor, fits, stacklevel=4)
@@ -431,8 +431,7 @@ class Estimator:
         t0 = time.perf_counter()
         light, known = None, False
         if images is not None:
-            images, light, per_sensor, known = self._read_light(
-                images, per_sensor, None if backgrounds is not None else self.known_units)
+            images, light, per_sensor, known = self._read_light(images, per_sensor, backgrounds is None)
         contacts = self._read_contacts(T, images, per_sensor)
         angles = None
         if self.settings.select.method == "ours":

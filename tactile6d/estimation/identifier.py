@@ -278,8 +278,7 @@ class Identifier:
         T, images, per_sensor = first._checked_scene(T_world_sensors, images, backgrounds)
         known, fits = False, None
         if images is not None:
-            images, fits, per_sensor, known = first._read_light(
-                images, per_sensor, None if backgrounds is not None else first.known_units)
+            images, fits, per_sensor, known = first._read_light(images, per_sensor, backgrounds is None)
         contacts = first._read_contacts(T, images, per_sensor)
         if self.settings.select.method != "ours":
             return T, SceneEncoding(contacts, None, photometric.from_another_unit(fits))

@@ -29,7 +29,7 @@ from tactile6d.core.sensor import (
     bodies_overlap,
     contact_points,
 )
-from tactile6d.data.hdf5 import tactile_shape_problem
+from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE, tactile_size_problem, to_tactile_size
 
 
 # How far a sensor pose's rotation block may be from a rotation (largest entry of |R^T R - I|, and |det R - 1|)
@@ -68,7 +68,9 @@ def check_sensor_poses(T_world_sensors) -> np.ndarray:
 
 
 def check_images(images, n_sensors: int) -> np.ndarray:
-    """L tactile images (an array or a sequence of arrays) -> (L, 320, 240, 3) uint8, one per sensor."""
+    """L tactile images (an array or a sequence of arrays) -> (L, 320, 240, 3) uint8, one per sensor; an image
+    at another size of the DIGIT's proportions is resized to it (``hdf5.to_tactile_size``: an
+    ``ImageSizeWarning``)."""
     if images is None:
         raise InputError("method 'ours' needs one tactile image per sensor, got none")
     if isinstance(images, np.ndarray) and images.ndim == 4:
@@ -79,15 +81,17 @@ def check_images(images, n_sensors: int) -> np.ndarray:
         raise InputError(f"tactile images must be (L, 320, 240, 3), got shape {images.shape}")
     if len(images) != n_sensors:
         raise InputError(f"{len(images)} tactile images for {n_sensors} sensor poses")
+    checked = []
     for i, image in enumerate(images):
         image = np.asarray(image)
-        problem = tactile_shape_problem(image.shape, f"image {i}")
+        problem = tactile_size_problem(image.shape, f"image {i}")
         if problem is not None:
             raise InputError(problem)
         if image.dtype != np.uint8:
             raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8 (0-255) as the "
                              f"camera gives them{_uint8_hint(image.dtype)}")
-    return np.stack([np.asarray(image) for image in images])
+        checked.append(to_tactile_size(image, f"image {i}"))
+    return np.stack(checked)
 
 
 def _uint8_hint(dtype: np.dtype) -> str:
@@ -105,36 +109,34 @@ def _uint8_hint(dtype: np.dtype) -> str:
 def check_backgrounds(backgrounds) -> np.ndarray:
     """The sensors' no-contact images: (320, 240, 3) uint8 RGB for every sensor, or (L, 320, 240, 3) (an
     array or a sequence of arrays) one per sensor, in sensor order -> that array, checked: InputError
-    naming the background when it has the wrong shape or dtype or is grey."""
-    if isinstance(backgrounds, (list, tuple)):
-        if len(backgrounds) == 0:
-            raise InputError("no background image given: pass one for all sensors or one per sensor")
-        for i, background in enumerate(backgrounds):
-            _check_background(np.asarray(background), f"background {i}")
-        return np.stack([np.asarray(b) for b in backgrounds])
-    backgrounds = np.asarray(backgrounds)
-    if backgrounds.ndim == 4:
-        if backgrounds.shape[0] == 0:
-            raise InputError("no background image given: pass one for all sensors or one per sensor")
-        for i, background in enumerate(backgrounds):
-            _check_background(background, f"background {i}")
-    else:
-        _check_background(backgrounds, "background")
-    return backgrounds
+    naming the background when it has the wrong shape or dtype or is grey. A background at another size of
+    the DIGIT image's proportions is resized to it, as images are (``check_images``)."""
+    if not isinstance(backgrounds, (list, tuple)):
+        backgrounds = np.asarray(backgrounds)
+        if backgrounds.ndim != 4:
+            return _check_background(backgrounds, "background")
+    if len(backgrounds) == 0:
+        raise InputError("no background image given: pass one for all sensors or one per sensor")
+    checked = [_check_background(np.asarray(b), f"background {i}") for i, b in enumerate(backgrounds)]
+    if isinstance(backgrounds, np.ndarray) and backgrounds.shape[1:] == TACTILE_IMAGE_SHAPE:
+        return backgrounds  # as given, no copy
+    return np.stack(checked)
 
 
-def _check_background(background: np.ndarray, name: str) -> None:
-    problem = tactile_shape_problem(background.shape, name)
+def _check_background(background: np.ndarray, name: str) -> np.ndarray:
+    problem = tactile_size_problem(background.shape, name)
     if problem is not None:
         raise InputError(f"{problem} (no-contact images: one (320, 240, 3) for all sensors or (L, 320, 240, 3), "
                          "one per sensor)")
     if background.dtype != np.uint8:
         raise InputError(f"{name} has dtype {background.dtype}, no-contact images must be uint8 like the "
                          f"tactile images{_uint8_hint(background.dtype)}")
+    background = to_tactile_size(background, name)
     if is_grey(background):
         raise InputError(f"{name} is grey (its three channels are equal everywhere), but a DIGIT image is "
                          "RGB colour: read it in colour (tactile6d.data.hdf5.read_tactile_image, or cv2.imread without "
                          "IMREAD_GRAYSCALE, then cv2.cvtColor(image, cv2.COLOR_BGR2RGB))")
+    return background
 
 
 def backgrounds_per_sensor(backgrounds: np.ndarray, n_sensors: int) -> np.ndarray:

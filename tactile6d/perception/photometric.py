@@ -622,16 +622,24 @@ class KnownUnitWarning(UnitWarning):
     with (``known_units_agreeing``)."""
 
 
-def unit_likeness(image: np.ndarray, units: Mapping[str, np.ndarray]) -> dict[str, float]:
+def unit_likeness(image: np.ndarray, units: Mapping[str, np.ndarray],
+                  ranks: Mapping[str, np.ndarray] | None = None) -> dict[str, float]:
     """How alike an image (H, W, 3) uint8 and each unit's no-contact image (units: name -> (H, W, 3) uint8) are under
     any change of light that keeps the order of brightness in each channel (a gain and a gamma): the rank correlation
     (Spearman's) of their ``block_means`` of ``LIKENESS_BLOCK`` pixels, the least over the three channels; name ->
     [-1, 1]. A press changes the order only where it is, so an image of the unit stays near 1 where another unit's
     LEDs, laid out otherwise, give far less: over the 480 images of scripts/real_setup_check.py's drawer on the four
-    tuning sets, at least 0.76 against their own unit and at most 0.59 against the seven others."""
+    tuning sets, at least 0.76 against their own unit and at most 0.59 against the seven others. ranks: the units'
+    ``unit_ranks``, when a caller compares several images with the same units (made here when None)."""
+    ranks = unit_ranks(units) if ranks is None else ranks
     mine = _standard_ranks(block_means(image, LIKENESS_BLOCK))
-    return {name: float(np.min(np.sum(mine * _standard_ranks(block_means(background, LIKENESS_BLOCK)), axis=0)))
-            for name, background in units.items()}
+    return {name: float(np.min(np.sum(mine * ranked, axis=0))) for name, ranked in ranks.items()}
+
+
+def unit_ranks(units: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Units' no-contact images (name -> (H, W, 3) uint8) -> name -> the ranks ``unit_likeness`` compares an image's
+    with (``_standard_ranks`` of their ``block_means``), made once for all the images of a call."""
+    return {name: _standard_ranks(block_means(background, LIKENESS_BLOCK)) for name, background in units.items()}
 
 
 def _standard_ranks(blocks: np.ndarray) -> np.ndarray:
@@ -652,11 +660,12 @@ def known_units_agreeing(images: np.ndarray, fits: list[LightFit], units: Mappin
     Images that agree with no known unit, and those that agreed with their own, are left out. Each image is fitted
     against the ``SCREENED_UNITS`` units most alike it (``unit_likeness``) only: a fit takes 16-20 ms, a lab's
     drawer of units would cost a second an estimate."""
-    out = {}
+    out, ranks = {}, None
     for i, fit in enumerate(fits):
         if not fit.from_another_unit:
             continue
-        likeness = unit_likeness(images[i], units)
+        ranks = unit_ranks(units) if ranks is None else ranks
+        likeness = unit_likeness(images[i], units, ranks)
         screened = sorted(units, key=lambda name: -likeness[name])[:SCREENED_UNITS]
         agreeing = [(f.agreement, name, f) for name in screened
                     if not (f := fit_light(images[i], units[name])).from_another_unit]
