@@ -44,6 +44,10 @@ with), drawn from ``--seed``:
   the two), no no-contact image passed; ``drawer-known``: the same images with the six given as known units
   (``tactile6d estimate --known-units``); ``drawer-own``: each sensor's own unit's no-contact image passed. The
   three draw the same units.
+- ``tacto-size``, ``vga``: every image and its no-contact image at another resolution of the same field of view,
+  passed at that size (the estimator reads them resized to 240 x 320, ``hdf5.to_tactile_size``): ``tacto-size``
+  120 x 160, what TACTO renders by default, each pixel the mean of the 2 x 2 it covers; ``vga`` 480 x 640, a DIGIT
+  streamed at VGA, enlarged bilinear from the set's images (``at_size``).
 
 Each scene is estimated with the online estimator (default settings, or the overrides given) and scored as
 the evaluation scores it; one JSON line per condition: the positional error of the best pose, mean and
@@ -84,7 +88,8 @@ from tactile6d.sim import perturb, scenes
 from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 CONDITIONS = ("clean", "noise", "light", "kinematic", "jpeg", "jpeg60", "blur", "jpeg90", "slight", "recorded+1", "recorded-1",
-              "shading", "shading10", "other-unit", "other-unit-own", "drawer", "drawer-known", "drawer-own")
+              "shading", "shading10", "other-unit", "other-unit-own", "drawer", "drawer-known", "drawer-own",
+              "tacto-size", "vga")
 OTHER_UNIT = "digit/tacto/bg_digit_240_320.jpg"  # TACTO's example DIGIT's no-contact image, in the data directory
 ISSUE_CONDITIONS = CONDITIONS[:4]  # issue 34's table: the default
 JPEG_QUALITY = {"jpeg": 80, "jpeg60": 60, "jpeg90": 90}
@@ -99,6 +104,18 @@ ADI_WITHIN = 0.02  # m: the share of scenes whose best pose is this close (ADI) 
 
 
 DRAWER_CONDITIONS = ("drawer", "drawer-known", "drawer-own")
+SIZES = {"tacto-size": (160, 120), "vga": (640, 480)}  # rows x columns the images are given at
+
+
+def at_size(images: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Images (..., 320, 240, 3) uint8 -> (..., rows, cols, 3): averaged over the pixels each covers when smaller
+    (OpenCV's INTER_AREA), bilinear when larger: the same field of view at another resolution."""
+    import cv2
+
+    flat = images.reshape(-1, *images.shape[-3:])
+    how = cv2.INTER_AREA if rows < images.shape[-3] else cv2.INTER_LINEAR
+    out = np.stack([cv2.resize(np.ascontiguousarray(image), (cols, rows), interpolation=how) for image in flat])
+    return out.reshape(*images.shape[:-3], rows, cols, 3)
 
 
 def drawer_units(units: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -126,8 +143,8 @@ def real_set_up(scene_set: scenes.SceneSet, condition: str, background: np.ndarr
     no-contact image its images were rendered over; other_unit (320, 240, 3) uint8 RGB, ``OTHER_UNIT``'s (for the
     ``other-unit`` conditions); drawer: name -> (320, 240, 3) uint8 RGB, the units of the ``drawer`` conditions, which
     record each sensor's unit's index in ``extra["unit"]`` (S, L). The truth (object poses, contacts) is unchanged."""
-    if condition == "clean":
-        return scene_set
+    if condition == "clean" or condition in SIZES:
+        return scene_set  # SIZES: the images are given at another size when estimated (main)
     if condition in ("other-unit", "other-unit-own"):
         own = np.broadcast_to(other_unit, scene_set.images.shape) if condition == "other-unit-own" else None
         return replace(scene_set, images=move_onto_units(scene_set.images, background, other_unit), backgrounds=own)
@@ -269,10 +286,14 @@ def main() -> int:
             chosen = with_drawer
         rows, failed = {key: [] for key in ERROR_KEYS}, 0
         for s, obj in enumerate(clean.objects.tolist()):
+            images, own = scene_set.images[s], scene_set.backgrounds_of(s)
+            if condition in SIZES:
+                images = at_size(images, *SIZES[condition])
+                own = at_size(background if own is None else own, *SIZES[condition])
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                scored = estimate_and_score(chosen[obj], scene_set.T_world_sensors[s], scene_set.images[s],
-                                            scene_set.T_world_object[s], references[obj], scene_set.backgrounds_of(s))
+                scored = estimate_and_score(chosen[obj], scene_set.T_world_sensors[s], images,
+                                            scene_set.T_world_object[s], references[obj], own)
             failed += scored.seconds is None
             for key, values in rows.items():
                 values.append(scored.errors[key])

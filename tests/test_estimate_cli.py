@@ -5,6 +5,7 @@ import json
 import re
 import shutil
 import sys
+import warnings
 from pathlib import Path
 
 import cv2
@@ -694,3 +695,44 @@ def test_known_units_from_files_and_folders_are_named_by_their_stems(tmp_path):
     assert sorted(units) == ["spare", "unit_0", "unit_1"]
     assert units["unit_1"].shape == (320, 240, 3) and tuple(units["unit_1"][0, 0]) == UNIT_COLOURS[0]
     assert known_units_option(None, None) is None
+
+
+@pytest.mark.slow
+def test_images_at_another_size_are_read_resized_one_warning_line_per_size(capsys, artifacts, scene, tmp_path):
+    """Flat images at 120 x 160 and their no-contact images at 480 x 640 in the folder: each size said once on one
+    line naming its files, and the estimate that of the same flat images at 240 x 320."""
+    from test_estimator import write_tiny_autoencoder
+
+    write_tiny_autoencoder(artifacts, 500, "prim_box")
+    same = copy_scene(scene, tmp_path / "same")
+    resized = copy_scene(scene, tmp_path / "resized")
+    for i in range(3):
+        write_tactile_image(same / f"background_{i}.png", np.full((320, 240, 3), FLAT, np.uint8))
+        write_tactile_image(resized / f"Image_heatmap_{i}.png", np.full((160, 120, 3), FLAT, np.uint8))
+        write_tactile_image(resized / f"background_{i}.png", np.full((640, 480, 3), FLAT, np.uint8))
+    results = {}
+    for folder in (same, resized):
+        code, out, err = run(capsys, "--object", "prim_box", "--scene", str(folder), "--artifacts", str(artifacts),
+                             "--json", "select.N=500")
+        assert code == 0, err
+        warned = [line.replace(str(folder), "FOLDER") for line in err.splitlines() if line.startswith("warning:")]
+        results[folder.name] = (json.loads(out), warned)
+    sized = [line for line in results["resized"][1] if "read resized" in line]
+    # the flat images show no contact, which both runs say alike
+    assert [line for line in results["resized"][1] if line not in sized] == results["same"][1]
+    assert sized == [
+        "warning: FOLDER: Image_heatmap_0.png, Image_heatmap_1.png, Image_heatmap_2.png are 120 wide x 160 high: "
+        "read resized to the DIGIT's 240 x 320 (enlarged, bilinear: less detail than a 240 x 320 image)",
+        "warning: FOLDER: background_0.png, background_1.png, background_2.png are 480 wide x 640 high: read "
+        "resized to the DIGIT's 240 x 320 (averaged down)"]
+    assert results["resized"][0]["best"] == results["same"][0]["best"]
+
+
+def test_a_warning_no_command_caught_is_one_warning_line(capsys, monkeypatch):
+    """The console script shows a warning as the commands write theirs: ``warning: <message>`` on stderr."""
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # restored after the test
+    assert cli.main(["--help"]) == 0
+    assert warnings.showwarning is cli.show_warning
+    capsys.readouterr()
+    warnings.warn_explicit("a message\n   on two lines", UserWarning, "x.py", 1)
+    assert capsys.readouterr().err == "warning: a message on two lines\n"

@@ -16,7 +16,7 @@ from tactile6d.core.errors import ArtifactError, ConfigError, InputError
 from tactile6d.core.sensor import BOX_HALF_EXTENTS, bodies_overlap, sensor_poses_touching
 from tactile6d.core.settings import Settings
 from tactile6d.data import layout
-from tactile6d.data.hdf5 import read_scene_dir, write_artifact
+from tactile6d.data.hdf5 import ImageSizeWarning, read_scene_dir, write_artifact
 from tactile6d.estimation import estimator as est
 from tactile6d.perception import contact_patch, photometric
 from tactile6d.perception.encode import KNOWN_UNITS, load_background
@@ -750,3 +750,38 @@ def test_overlapping_sensors_and_one_sensor(world):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # three sensors: no warning
         make_estimator(world).estimate(world["T_world_sensors"], world["images"])
+
+
+# --- images at another resolution of the DIGIT's field of view ---------------------------------------------
+
+
+@pytest.mark.slow
+def test_images_at_another_size_are_read_resized(world, three_units):
+    """Each pixel repeated 2 x 2 (a 480 x 640 image of the same field of view) gives the estimate of the 240 x 320
+    images to the bit: averaged back down, four equal pixels are that pixel. Rendered at 120 x 160 (each pixel the
+    mean of 2 x 2, as TACTO's default size gives) and enlarged, the presses are read within a millimetre."""
+    import cv2
+
+    e = est.Estimator.from_artifacts("prim_x", three_units["artifacts"], compose_config(["select.N=200"]),
+                                     background=three_units["common"])
+    T, images = world["T_world_sensors"], three_units["over_common"]
+    reference = e.estimate(T, images)
+    vga = images.repeat(2, axis=1).repeat(2, axis=2)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        enlarged = e.estimate(T, vga, backgrounds=three_units["common"].repeat(2, axis=0).repeat(2, axis=1))
+    said = [str(w.message) for w in caught if w.category is ImageSizeWarning]
+    assert sorted(said) == [f"{name} is 480 wide x 640 high: read resized to the DIGIT's 240 x 320 (averaged down)"
+                            for name in ("background", "image 0", "image 1", "image 2")]
+    np.testing.assert_array_equal(enlarged.poses, reference.poses)
+    np.testing.assert_array_equal(enlarged.angles, reference.angles)
+
+    def small(image):
+        return cv2.resize(image, (120, 160), interpolation=cv2.INTER_AREA)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        coarse = e.estimate(T, [small(image) for image in images], backgrounds=small(three_units["common"]))
+    assert sum(w.category is ImageSizeWarning and "enlarged, bilinear" in str(w.message) for w in caught) == 4
+    assert coarse.contacts.from_patch.all()
+    assert np.linalg.norm(coarse.contacts.points - reference.contacts.points, axis=1).max() < 1e-3

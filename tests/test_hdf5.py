@@ -184,3 +184,52 @@ def test_reads_the_papers_triplets(data_dir):
 
     T, images = read_scene_dir(data_dir / "caddeo2023/triplets/004_sugar_box/triplet_1")
     assert T.shape == (3, 4, 4) and images.shape == (3, 320, 240, 3)
+
+
+def test_resize_to_tactile_against_block_means_and_bilinear_references():
+    """Shrinking by 2 is the mean of each 2 x 2 block (rounded); enlarging a linear ramp keeps it linear inside;
+    the shape only tells what is resizable (4:3 rows to columns, three channels)."""
+    from tactile6d.data.hdf5 import resizable_to_tactile, resize_to_tactile
+
+    rng = np.random.default_rng(0)
+    vga = rng.integers(0, 256, (640, 480, 3), dtype=np.uint8)
+    naive = vga.reshape(320, 2, 240, 2, 3).astype(np.float64).mean(axis=(1, 3))
+    small = resize_to_tactile(vga)
+    assert small.shape == (320, 240, 3) and small.dtype == np.uint8
+    assert np.abs(small - naive).max() <= 0.5 + 1e-9
+    rows = np.arange(160, dtype=np.float64)
+    ramp = np.repeat(rows[:, None, None], 120, axis=1).repeat(3, axis=2).astype(np.uint8)
+    big = resize_to_tactile(ramp)
+    # bilinear with half-pixel centres: output row r samples input row (r + 0.5) / 2 - 0.5
+    expected = (np.arange(320) + 0.5) / 2 - 0.5
+    np.testing.assert_allclose(big[2:-2, 100, 0], expected[2:-2], atol=0.5 + 1e-9)
+    assert resizable_to_tactile((640, 480, 3)) and resizable_to_tactile((160, 120, 3))
+    assert not resizable_to_tactile((320, 240, 3))  # already the DIGIT's size
+    assert not resizable_to_tactile((480, 640, 3))  # turned: the camera's raw frame
+    assert not resizable_to_tactile((640, 480, 4)) and not resizable_to_tactile((640, 480))
+    assert not resizable_to_tactile((600, 480, 3))
+
+
+def test_an_image_file_at_another_size_is_read_resized_and_said(tmp_path):
+    import warnings
+
+    import cv2
+
+    from tactile6d.core.errors import InputError
+    from tactile6d.data.hdf5 import ImageSizeWarning, read_tactile_image
+
+    rng = np.random.default_rng(1)
+    image = rng.integers(0, 256, (320, 240, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "vga.png"), image.repeat(2, axis=0).repeat(2, axis=1)[..., ::-1])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read = read_tactile_image(tmp_path / "vga.png")
+    np.testing.assert_array_equal(read, image)
+    (w,) = caught
+    assert w.category is ImageSizeWarning and (w.message.width, w.message.height) == (480, 640)
+    assert w.message.name == str(tmp_path / "vga.png")
+    assert str(w.message).endswith("vga.png is 480 wide x 640 high: read resized to the DIGIT's 240 x 320 (averaged down)")
+    cv2.imwrite(str(tmp_path / "wide.png"), np.zeros((320, 320, 3), np.uint8))
+    with pytest.raises(InputError, match=r"wide.png is 320 wide x 320 high, .*an image of its proportions at another "
+                                         r"size .* is read resized"):
+        read_tactile_image(tmp_path / "wide.png")

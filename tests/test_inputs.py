@@ -341,3 +341,27 @@ def test_a_best_pose_that_presses_deep_into_a_sensor_is_warned_about():
     assert "T_world_sensor" not in str(caught[0].message)
     with pytest.warns(inputs.PenetrationWarning, match=r"Images 0, 2 were read against .* read from them"):
         inputs.warn_if_pressed_in(np.array([0.0057, 0.0053, 0.0096]), allowance, misread=(0, 2))
+
+
+def test_images_and_backgrounds_at_another_size_are_resized_one_warning_each(default_background):
+    """Images at 120 x 160 (TACTO's default size) come out at 240 x 320, each named; a (L, 320, 240, 3) array of
+    backgrounds is returned as it is (no copy), a list at another size stacked resized; dtype is checked first."""
+    from tactile6d.data.hdf5 import ImageSizeWarning
+
+    small = default_background[::2, ::2]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        images = inputs.check_images([default_background, small], 2)
+        backgrounds = inputs.check_backgrounds([small, default_background])
+    assert images.shape == backgrounds.shape == (2, 320, 240, 3)
+    np.testing.assert_array_equal(images[0], default_background)
+    np.testing.assert_array_equal(images[1], backgrounds[0])
+    assert [(w.category, w.message.name) for w in caught] == [(ImageSizeWarning, "image 1"),
+                                                              (ImageSizeWarning, "background 0")]
+    stacked = np.stack([default_background] * 3)
+    assert inputs.check_backgrounds(stacked) is stacked
+    with pytest.raises(InputError, match="image 0 has dtype float32"):
+        inputs.check_images([small.astype(np.float32)], 1)
+    with pytest.raises(InputError, match="background is grey"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", ImageSizeWarning)
+        inputs.check_backgrounds(np.repeat(small[..., :1], 3, axis=2))

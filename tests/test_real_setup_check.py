@@ -229,3 +229,17 @@ def test_shading_changes_the_light_unevenly_and_keeps_the_old_no_contact_image(c
         spread = np.max(np.abs(np.subtract(halves[0], halves[1])) + np.abs(np.subtract(halves[2], halves[3])))
         assert 0.5 * 120 * slope < spread < 2.5 * 120 * slope  # the halves differ by about the slope
         assert abs(image.mean() - 120) < 1.0  # about unchanged on average: uneven, not brighter
+
+
+def test_the_size_conditions_give_the_images_at_another_resolution():
+    """tacto-size and vga leave the set as it is (the images are resized when estimated): at_size averages 2 x 2
+    blocks down to 120 x 160 and enlarges to 480 x 640, keeping the leading axes."""
+    s = small_set()
+    assert all(check.real_set_up(s, c, BACKGROUND, np.random.default_rng(0)) is s for c in check.SIZES)
+    small = check.at_size(s.images, *check.SIZES["tacto-size"])
+    assert small.shape == (3, 3, 160, 120, 3) and small.dtype == np.uint8
+    naive = s.images.reshape(3, 3, 160, 2, 120, 2, 3).astype(float).mean(axis=(3, 5))
+    assert np.abs(small - naive).max() <= 0.5 + 1e-9
+    large = check.at_size(s.images[0, 0], *check.SIZES["vga"])
+    assert large.shape == (640, 480, 3)
+    assert abs(large.astype(float).mean() - s.images[0, 0].mean()) < 0.5

@@ -354,3 +354,23 @@ def test_a_pose_bag_may_be_one_mcap_or_db3_file(tmp_path):
             write_pose_bag(path, stamps, poses)
     with pytest.raises(InputError, match=r"stamps must be finite seconds >= 0 \(ROS time\), got -1.0 for frame 0"):
         write_pose_bag(tmp_path / "negative", np.array([-1.0, 0.0, 0.1, 0.2]), poses)
+
+
+def test_a_digit_streamed_at_vga_is_read_at_its_qvga_size(tmp_path, recording):
+    """A DIGIT streamed at VGA gives 640 x 480 frames, 480 x 640 once turned: read as the 240 x 320 image of the
+    same field of view, with an ImageSizeWarning naming the topic; each pixel repeated 2 x 2 comes back exactly."""
+    from tactile6d.data.hdf5 import ImageSizeWarning
+
+    stamps, _, images = recording
+    vga = images[0, 0].repeat(2, axis=0).repeat(2, axis=1)
+    upright = image_message(TYPESTORE, stamps[0], "digit_0", vga)
+    raw = image_message(TYPESTORE, stamps[0], "digit_1", np.ascontiguousarray(np.rot90(vga, -1)))
+    bag = write_bag(tmp_path / "bag", [("/vga", IMAGE, stamps[0], upright), ("/raw", IMAGE, stamps[0], raw)])
+    with pytest.warns(ImageSizeWarning, match=r"/vga: an image is 480 wide x 640 high: read resized .*averaged down"):
+        (frame,) = read_bag_frames(bag, ["/vga"], fixed_poses=np.eye(4)[None])
+    np.testing.assert_array_equal(frame.images[0], images[0, 0])
+    with pytest.warns(ImageSizeWarning, match=r"/raw: an image is 480 wide x 640 high"):
+        (frame,) = read_bag_frames(bag, ["/raw"], fixed_poses=np.eye(4)[None], raw_camera_frames=True)
+    np.testing.assert_array_equal(frame.images[0], images[0, 0])
+    with pytest.raises(InputError, match=r"/raw: an image is 640 wide x 480 high.*rotated by 90 degrees"):
+        list(read_bag_frames(bag, ["/raw"], fixed_poses=np.eye(4)[None]))

@@ -13,6 +13,7 @@ import functools
 import importlib
 import re
 import sys
+import warnings
 
 from tactile6d.core.errors import exit_on_error
 
@@ -48,8 +49,15 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning no command turned into its own lines -> one ``warning: <message>`` line on stderr, as the
+    commands write theirs, not Python's ``file:line: Category: message`` with the source line."""
+    print(f"warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    warnings.showwarning = show_warning
     for words, (module_name, _) in sorted(COMMANDS.items(), key=lambda kv: -len(kv[0])):
         if tuple(argv[: len(words)]) == words:
             try:

@@ -34,13 +34,12 @@ import numpy as np
 
 from tactile6d.cli import description
 from tactile6d.cli.estimate import (AUTO, FROM_SCENES, EstimatorCache, add_scene_arguments, background_option,
-                                    collect_scenes, object_of, scene_backgrounds, split_overrides, warnings_to_lines,
+                                    collect_scenes, object_of, read_scene_folder, split_overrides, warnings_to_lines,
                                     write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import line_to_pose
-from tactile6d.data.hdf5 import read_scene_dir
 from tactile6d.perception import photometric
 
 if TYPE_CHECKING:
@@ -106,10 +105,9 @@ def read_grasp(scene: Path, name: str, cache: EstimatorCache, T_world_object: np
     """One grasp: its images brought to their no-contact images' light and read as the estimator reads them."""
     from tactile6d.estimation.sensor_offsets import KnownGrasp  # the estimator's modules: not loaded for --help
 
-    T_world_sensors, images = read_scene_dir(scene)
-    backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), cache.background is not None)
-    if note:
-        write(note, sys.stderr)
+    T_world_sensors, images, backgrounds, lines = read_scene_folder(scene, cache.background is not None)
+    for line in lines:
+        write(line, sys.stderr)
     estimator = cache.load(name)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)

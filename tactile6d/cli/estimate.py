@@ -77,7 +77,13 @@ from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, DataError, InputError, NoMatch, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
-from tactile6d.data.hdf5 import read_background_images, read_scene_backgrounds, read_scene_dir, read_tactile_image
+from tactile6d.data.hdf5 import (
+    ImageSizeWarning,
+    read_background_images,
+    read_scene_backgrounds,
+    read_scene_dir,
+    read_tactile_image,
+)
 from tactile6d.perception import photometric
 from tactile6d.perception.inputs import PenetrationWarning, UnderdeterminedPoseWarning
 
@@ -331,10 +337,9 @@ def estimate_scene(scene: Path, name: str, cache: EstimatorCache, suggest_touch:
     and an ambiguous estimate, where one more touch would tell its poses apart (``Touch``; else None); its notes
     and warnings (``scene_backgrounds``, ``warnings_to_lines``) go to stderr; with ``plot``, its figure is
     written there (``write_plot``)."""
-    T_world_sensors, images = read_scene_dir(scene)
-    backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), cache.background is not None)
-    if note:
-        write(note, sys.stderr)
+    T_world_sensors, images, backgrounds, lines = read_scene_folder(scene, cache.background is not None)
+    for line in lines:
+        write(line, sys.stderr)
     estimator, load_seconds = cache.get(name)
     from tactile6d.perception.contacts import UntouchedSensorWarning  # OpenCV and trimesh: not for --help
 
@@ -538,9 +543,31 @@ def scene_backgrounds(scene: Path, n_sensors: int, given: bool) -> tuple[np.ndar
                          f"background_<i>.png (i = 0..{n_sensors - 1})")
 
 
+def read_scene_folder(scene: Path, background_given: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[str]]:
+    """A scene folder read (``read_scene_dir``, and its own no-contact images unless ``--background`` was
+    ``background_given``: ``scene_backgrounds``) -> T_world_sensors (L, 4, 4), images (L, 320, 240, 3), its
+    no-contact images or None, and the lines for stderr: the note on its no-contact images and, for images of
+    another size read resized, one warning line per size (``warnings_to_lines``)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ImageSizeWarning)
+        T_world_sensors, images = read_scene_dir(scene)
+        backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), background_given)
+    return T_world_sensors, images, backgrounds, ([note] if note else []) + warnings_to_lines(scene, caught)
+
+
 def warnings_to_lines(scene: Path, caught: list) -> list[str]:
-    """Caught warnings -> one ``warning: <scene>: <message>`` line each (the CLI's form of the API's warnings)."""
-    return [f"warning: {scene}: {' '.join(str(w.message).split())}" for w in caught]
+    """Caught warnings -> one ``warning: <scene>: <message>`` line each (the CLI's form of the API's warnings), but
+    one line for all the images of one size read resized (``hdf5.ImageSizeWarning``), naming their files."""
+    sized: dict[str, list[str]] = {}
+    lines = []
+    for w in caught:
+        if isinstance(w.message, ImageSizeWarning):
+            name = Path(w.message.name)
+            sized.setdefault(w.message.size_text(), []).append(name.name if name.parent == scene else str(name))
+        else:
+            lines.append(f"warning: {scene}: {' '.join(str(w.message).split())}")
+    return [f"warning: {scene}: {', '.join(names)} {'is' if len(names) == 1 else 'are'} {text}"
+            for text, names in sized.items()] + lines
 
 
 def as_json(scene: Path, name: str, result: Estimate, cfg, load_seconds: float, suggest_touch: bool = False,

@@ -40,13 +40,12 @@ from tactile6d.cli import description
 from tactile6d.cli.estimate import (FROM_SCENES, add_known_units_argument, add_sensor_offsets_argument,
                                     background_option, collect_scenes, error_json, error_line, is_override,
                                     known_units_option, object_mesh, plot_paths,
-                                    read_sensor_offsets, scene_backgrounds, split_overrides, use_solver_devices,
+                                    read_scene_folder, read_sensor_offsets, split_overrides, use_solver_devices,
                                     warnings_to_lines, write_plot)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import ConfigError, InputError, Tactile6dError
 from tactile6d.core.geometry import pose_to_line
-from tactile6d.data.hdf5 import read_scene_dir
 from tactile6d.perception.inputs import UnderdeterminedPoseWarning
 from tactile6d.perception.photometric import LightWarning
 
@@ -162,14 +161,13 @@ def identify_scene(identifier, scene: Path, offsets, background_given: bool, plo
     images used unless ``--background`` was given; notes and warnings (each said once) on stderr; with ``plot``,
     the most probable object's estimate drawn there (``estimate.write_plot``; its mesh from ``known``'s artifacts
     when its estimator holds none)."""
-    T_world_sensors, images = read_scene_dir(scene)
+    T_world_sensors, images, backgrounds, lines = read_scene_folder(scene, background_given)
+    for line in lines:
+        print(line, file=sys.stderr)
     if offsets is not None:
         from tactile6d.estimation.sensor_offsets import apply_sensor_offsets
 
         T_world_sensors = apply_sensor_offsets(T_world_sensors, offsets)
-    backgrounds, note = scene_backgrounds(scene, len(T_world_sensors), background_given)
-    if note:
-        print(note, file=sys.stderr)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnderdeterminedPoseWarning)
         warnings.simplefilter("always", LightWarning)

@@ -30,7 +30,7 @@ import numpy as np
 
 from tactile6d.core.errors import InputError
 from tactile6d.core.geometry import invert_pose, is_rotation, make_pose, quaternion_to_rotmat
-from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE, tactile_shape_problem
+from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE, tactile_size_problem, to_tactile_size
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -184,14 +184,17 @@ RAW_FRAME_SHAPE = (TACTILE_IMAGE_SHAPE[1], TACTILE_IMAGE_SHAPE[0])  # the camera
 
 
 def _check_digit_shape(rows: int, cols: int, topic: str, raw_camera_frames: bool) -> None:
+    """InputError naming the topic unless (rows, cols) is a DIGIT image's, at its own size or another of its
+    proportions (``hdf5.tactile_size_problem``; a raw frame's turned, with ``raw_camera_frames``)."""
     if raw_camera_frames:
-        if (rows, cols) != RAW_FRAME_SHAPE:
+        if tactile_size_problem((cols, rows, 3), "") is not None:
             raise InputError(f"{topic}: an image is {cols} wide x {rows} high; a DIGIT camera's raw frame "
-                             f"(--raw-camera-frames) is {RAW_FRAME_SHAPE[1]} wide x {RAW_FRAME_SHAPE[0]} high")
+                             f"(--raw-camera-frames) is {RAW_FRAME_SHAPE[1]} wide x {RAW_FRAME_SHAPE[0]} high (or "
+                             "another size of its proportions, 4:3, read resized)")
         return
-    problem = tactile_shape_problem((rows, cols, 3), f"{topic}: an image")
+    problem = tactile_size_problem((rows, cols, 3), f"{topic}: an image")
     if problem is not None:
-        if (rows, cols) == RAW_FRAME_SHAPE:
+        if tactile_size_problem((cols, rows, 3), "") is None:
             problem += " (tactile6d track --bag: --raw-camera-frames turns them so)"
         raise InputError(problem)
 
@@ -199,8 +202,9 @@ def _check_digit_shape(rows: int, cols: int, topic: str, raw_camera_frames: bool
 def image_from_message(msg, topic: str, raw_camera_frames: bool = False) -> np.ndarray:
     """A deserialised ``sensor_msgs/msg/Image`` (encoding rgb8 or bgr8) or ``CompressedImage`` (png, jpeg) ->
     (320, 240, 3) uint8 RGB (a copy). With ``raw_camera_frames`` the message holds the camera's raw frame (240 rows
-    x 320 columns), turned as digit-interface's ``Digit.get_frame()`` turns it (``np.rot90``). InputError naming the
-    topic for another encoding, an undecodable image or another size."""
+    x 320 columns), turned as digit-interface's ``Digit.get_frame()`` turns it (``np.rot90``). An image at another
+    size of these proportions (a DIGIT streamed at VGA) is resized (``hdf5.to_tactile_size``, an
+    ``ImageSizeWarning``). InputError naming the topic for another encoding, an undecodable image or another size."""
     if msg.__msgtype__ == COMPRESSED_IMAGE:
         import cv2
 
@@ -221,7 +225,8 @@ def image_from_message(msg, topic: str, raw_camera_frames: bool = False) -> np.n
                              f"{encoding}")
         image = data[: rows * step].reshape(rows, step)[:, : 3 * cols].reshape(rows, cols, 3)
         image = image[..., ::-1] if encoding == "bgr8" else image
-    return np.ascontiguousarray(np.rot90(image) if raw_camera_frames else image)
+    image = np.ascontiguousarray(np.rot90(image) if raw_camera_frames else image)
+    return to_tactile_size(image, f"{topic}: an image")
 
 
 # --- the TF tree ----------------------------------------------------------------------------------------------
