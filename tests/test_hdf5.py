@@ -233,3 +233,30 @@ def test_an_image_file_at_another_size_is_read_resized_and_said(tmp_path):
     with pytest.raises(InputError, match=r"wide.png is 320 wide x 320 high, .*an image of its proportions at another "
                                          r"size .* is read resized"):
         read_tactile_image(tmp_path / "wide.png")
+
+
+def test_a_scene_folder_may_hold_jpeg_images(tmp_path):
+    """Image_heatmap_<i> and background_<i> are read from a .jpg or .jpeg where the .png is absent (the images
+    JPEG decodes to); two files for one image are an error that names both."""
+    import cv2
+
+    from tactile6d.core.errors import InputError
+    from tactile6d.data.hdf5 import read_scene_backgrounds, read_scene_dir
+
+    folder = tmp_path / "jpeg"
+    write_scene(folder)
+    rng = np.random.default_rng(2)
+    for i, suffix in enumerate([".jpg", ".jpeg", ".png"]):
+        image = rng.integers(0, 256, (320, 240, 3), dtype=np.uint8)
+        if suffix != ".png":
+            (folder / f"Image_heatmap_{i}.png").unlink()
+            cv2.imwrite(str(folder / f"Image_heatmap_{i}{suffix}"), image)
+        cv2.imwrite(str(folder / f"background_{i}{suffix}"), image)
+    _, images = read_scene_dir(folder)
+    decoded = cv2.imread(str(folder / "Image_heatmap_0.jpg"))[..., ::-1]
+    np.testing.assert_array_equal(images[0], decoded)
+    backgrounds = read_scene_backgrounds(folder, 3)
+    np.testing.assert_array_equal(backgrounds[1], cv2.imread(str(folder / "background_1.jpeg"))[..., ::-1])
+    cv2.imwrite(str(folder / "Image_heatmap_0.png"), images[0][..., ::-1])
+    with pytest.raises(InputError, match=r"Image_heatmap_0.png and Image_heatmap_0.jpg are both there"):
+        read_scene_dir(folder)

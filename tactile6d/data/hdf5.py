@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -296,8 +297,9 @@ def read_scene_dir(directory: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
     """A scene folder in the paper's triplet layout -> T_world_sensors (L, 4, 4), images (L, 320, 240, 3).
 
     The folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor) and
-    ``Image_heatmap_<i>.png`` for i = 0..L-1 (and, optionally, the sensors' no-contact images:
-    ``read_scene_backgrounds``). InputError names what is missing or inconsistent.
+    ``Image_heatmap_<i>.png`` for i = 0..L-1 (or ``.jpg``/``.jpeg`` where the PNG is absent:
+    ``scene_image_file``; and, optionally, the sensors' no-contact images: ``read_scene_backgrounds``). InputError
+    names what is missing or inconsistent.
     """
     from tactile6d.core.errors import InputError
     from tactile6d.core.geometry import text_to_poses
@@ -312,17 +314,33 @@ def read_scene_dir(directory: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
         poses = text_to_poses(pose_file.read_text())
     except ValueError as exc:
         raise InputError(f"{pose_file}: {exc}") from exc
-    image_files = sorted(directory.glob("Image_heatmap_*.png"), key=lambda p: p.stem)
-    expected = [directory / f"Image_heatmap_{i}.png" for i in range(len(poses))]
-    missing = [p.name for p in expected if not p.is_file()]
+    n_images = len({p.stem for p in directory.iterdir() if SCENE_IMAGE.fullmatch(p.name)})
+    expected = [scene_image_file(directory, f"Image_heatmap_{i}") for i in range(len(poses))]
+    missing = [f"Image_heatmap_{i}.png" for i, p in enumerate(expected) if p is None]
     if missing:
         raise InputError(f"{directory}: {len(poses)} sensor poses but image(s) {', '.join(missing)} missing")
-    if len(image_files) != len(poses):
-        raise InputError(f"{directory}: {len(image_files)} images but {len(poses)} sensor poses")
+    if n_images != len(poses):
+        raise InputError(f"{directory}: {n_images} images but {len(poses)} sensor poses")
     return poses, np.stack([read_tactile_image(p) for p in expected])
 
 
-SCENE_BACKGROUND = "background_{}.png"  # sensor i's own no-contact image in a scene folder
+SCENE_BACKGROUND = "background_{}.png"  # sensor i's own no-contact image in a scene folder, as written
+# A scene folder's images are PNG files, as the paper's are; JPEG files (as a camera or another tool saves them) are
+# read where the PNG is absent.
+SCENE_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+SCENE_IMAGE = re.compile(r"Image_heatmap_\d+\.(png|jpg|jpeg)")
+
+
+def scene_image_file(directory: Path, stem: str) -> Path | None:
+    """The image file ``stem`` in a scene folder, PNG or JPEG (``SCENE_IMAGE_SUFFIXES``) -> its path, or None when
+    there is none; InputError when there are several (two files for one image: which is meant is not said)."""
+    from tactile6d.core.errors import InputError
+
+    found = [directory / (stem + suffix) for suffix in SCENE_IMAGE_SUFFIXES if (directory / (stem + suffix)).is_file()]
+    if len(found) > 1:
+        raise InputError(f"{directory}: {' and '.join(p.name for p in found)} are both there; keep one image per file "
+                         "name")
+    return found[0] if found else None
 
 
 def read_background_images(paths: list[str | os.PathLike]) -> np.ndarray:
@@ -345,18 +363,18 @@ def read_background_images(paths: list[str | os.PathLike]) -> np.ndarray:
 
 
 def read_scene_backgrounds(directory: str | os.PathLike, n_sensors: int) -> np.ndarray | None:
-    """The sensors' own no-contact images of a scene folder, ``background_<i>.png`` for i = 0..L-1 beside
+    """The sensors' own no-contact images of a scene folder, ``background_<i>.png`` (or JPEG) for i = 0..L-1 beside
     ``Image_heatmap_<i>.png`` -> (L, 320, 240, 3) uint8 RGB, or None when the folder holds none.
     InputError when only some sensors have one (naming the missing ones) or one is unreadable."""
     from tactile6d.core.errors import InputError
 
     directory = Path(directory)
-    expected = [directory / SCENE_BACKGROUND.format(i) for i in range(n_sensors)]
-    present = [p.is_file() for p in expected]
+    expected = [scene_image_file(directory, Path(SCENE_BACKGROUND.format(i)).stem) for i in range(n_sensors)]
+    present = [p is not None for p in expected]
     if not any(present):
         return None
     if not all(present):
-        missing = ", ".join(p.name for p, here in zip(expected, present) if not here)
+        missing = ", ".join(SCENE_BACKGROUND.format(i) for i, here in enumerate(present) if not here)
         raise InputError(f"{directory}: {sum(present)} of {n_sensors} sensors have a no-contact image "
                          f"background_<i>.png; {missing} missing (give every sensor's, or none)")
     return read_background_images(expected)[None] if n_sensors == 1 else read_background_images(expected)
