@@ -1,7 +1,8 @@
 """``tactile6d estimate``: an object's pose from scene folders in the paper's triplet layout.
 
 Each scene folder holds ``poses_sensors.txt`` (one ``x y z ax ay az angle`` line per sensor, world
-frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image), and may hold ``background_<i>.png``
+frame) and ``Image_heatmap_<i>.png`` (sensor i's tactile image; ``.jpg`` or ``.jpeg`` where there is no PNG;
+another size of its proportions is read resized, with a warning), and may hold ``background_<i>.png``
 (sensor i's own no-contact image, for every sensor): the images are then read against those, as a note
 on stderr says, unless ``--background`` is given (one file for every sensor, or one per sensor in sensor
 order), which wins. With neither, the default (``render.background``) is used, and an image that looks like
