@@ -9,6 +9,7 @@ import contextlib
 import io
 import json
 import re
+import shutil
 import warnings
 
 import numpy as np
@@ -466,3 +467,22 @@ def test_help_shows_no_rest_markup(capsys):
         cli.main(["track", "--help"])
     out = capsys.readouterr().out
     assert "``" not in out and "tactile6d track: follow an object's pose over a stream of frames" in out
+
+
+@pytest.mark.slow
+def test_frames_streamed_at_vga_are_tracked_as_at_their_own_size(capsys, artifacts, recording, from_sequence, tmp_path):
+    """The sequence's frames written at 480 x 640, each pixel repeated 2 x 2: tracked to the same poses, and the
+    resizing said on one warning line for the whole stream."""
+    import cv2
+
+    vga = shutil.copytree(recording["sequence"], tmp_path / "vga")
+    for path in vga.rglob("Image_heatmap_*.png"):
+        cv2.imwrite(str(path), cv2.imread(str(path)).repeat(2, axis=0).repeat(2, axis=1))
+    code, out, err = run(capsys, "--object", OBJECT, "--sequence", str(vga), "--artifacts", str(artifacts), "--json",
+                         *BASELINE)
+    assert code == 0, err
+    frames = json_frames(out)
+    np.testing.assert_array_equal(np.array([f["pose"] for f in frames]), np.array([f["pose"] for f in from_sequence]))
+    sized = [line for line in err.splitlines() if "read resized" in line]
+    assert len(sized) == 1 and sized[0].startswith("warning: ") and "is 480 wide x 640 high" in sized[0]
+    assert f"({3 * F} times" in sized[0]

@@ -164,7 +164,8 @@ def add_sensor_offsets_argument(parser: argparse.ArgumentParser, poses: str) -> 
 def add_known_units_argument(parser: argparse.ArgumentParser) -> None:
     """``--known-units PATH [PATH ...]``: the user's own DIGIT units' no-contact images (``known_units_option``)."""
     parser.add_argument("--known-units", nargs="+", default=None, metavar="PATH",
-                        help="your DIGIT units' no-contact images (PNG or JPEG, 240 x 320), files or folders of "
+                        help="your DIGIT units' no-contact images (PNG or JPEG, 240 x 320 or another size of its "
+                             "proportions, read resized), files or folders of "
                              "them, each unit named by its file's stem: an image passed without its own no-contact "
                              "image that does not agree with the default is read against the unit's it agrees "
                              "with, among these and the data directory's (not with --background)")
