@@ -600,6 +600,7 @@ def test_unit_likeness_is_the_rank_correlation_of_the_block_means_least_over_the
              "b": np.clip(image.astype(int) + rng.integers(-30, 30, image.shape), 0, 255).astype(np.uint8)}
     mine = photometric.block_means(image, photometric.LIKENESS_BLOCK)
     likeness = photometric.unit_likeness(image, units)
+    assert photometric.unit_likeness(image, units, photometric.unit_ranks(units)) == likeness  # ranks made once
     for name, unit in units.items():
         theirs = photometric.block_means(unit, photometric.LIKENESS_BLOCK)
         naive = min(spearman(mine[..., c].ravel(), theirs[..., c].ravel()) for c in range(3))
