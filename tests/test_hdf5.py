@@ -235,6 +235,30 @@ def test_an_image_file_at_another_size_is_read_resized_and_said(tmp_path):
         read_tactile_image(tmp_path / "wide.png")
 
 
+def test_a_size_problem_hints_by_shape_turned_or_resizable():
+    """A turned DIGIT image (the raw frame's proportions, at any size) gets the rotation hint and not the resize one;
+    a colour image of other proportions gets the resize one; an accepted shape none; sized_as_tactile passes an image
+    at the DIGIT's size through unchanged (the same object) and resizes another with a warning naming it."""
+    import warnings
+
+    from tactile6d.data.hdf5 import ImageSizeWarning, sized_as_tactile, tactile_size_problem
+
+    for turned in [(240, 320, 3), (480, 640, 3)]:
+        problem = tactile_size_problem(turned, "im")
+        assert "np.rot90(frame)" in problem and "read resized" not in problem
+    assert "read resized" in tactile_size_problem((300, 300, 3), "im")
+    assert "read resized" not in tactile_size_problem((320, 240, 4), "im")  # four channels: not the size at fault
+    assert tactile_size_problem((320, 240, 3), "im") is None and tactile_size_problem((640, 480, 3), "im") is None
+    image = np.zeros((320, 240, 3), np.uint8)
+    assert sized_as_tactile(image, "im") is image
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        small = sized_as_tactile(np.zeros((160, 120, 3), np.uint8), "tacto")
+    assert small.shape == (320, 240, 3)
+    (w,) = caught
+    assert w.category is ImageSizeWarning and (w.message.name, w.message.width, w.message.height) == ("tacto", 120, 160)
+
+
 def test_a_scene_folder_may_hold_jpeg_images(tmp_path):
     """Image_heatmap_<i> and background_<i> are read from a .jpg or .jpeg where the .png is absent (the images
     JPEG decodes to); two files for one image are an error that names both."""

@@ -217,7 +217,7 @@ def tactile_shape_problem(shape: tuple[int, ...], name: str) -> str | None:
         return None
     size = f"{name} is {shape[1]} wide x {shape[0]} high" if len(shape) >= 2 else f"{name} has shape {shape}"
     problem = f"{size}, a DIGIT image is 240 wide x 320 high (array shape (320, 240, 3))"
-    if len(shape) == 3 and shape[2] == 3 and shape[1] * 3 == shape[0] * 4:
+    if _looks_turned(shape):
         problem += (": it looks rotated by 90 degrees, as the camera's raw frame is; digit-interface's "
                     "Digit.get_frame() returns np.rot90(frame), which is the image to pass")
     elif len(shape) == 3 and shape[:2] == TACTILE_IMAGE_SHAPE[:2]:
@@ -225,6 +225,11 @@ def tactile_shape_problem(shape: tuple[int, ...], name: str) -> str | None:
     elif len(shape) == 2 and shape == TACTILE_IMAGE_SHAPE[:2]:
         problem += ": it has one channel, a DIGIT image has 3 (RGB)"
     return problem
+
+
+def _looks_turned(shape: tuple[int, ...]) -> bool:
+    """Whether ``shape`` is (H, W, 3) with W:H = 4:3, a DIGIT image's proportions turned by 90 degrees (the raw frame's)."""
+    return len(shape) == 3 and shape[2] == 3 and shape[1] * 3 == shape[0] * 4
 
 
 def resizable_to_tactile(shape: tuple[int, ...]) -> bool:
@@ -249,10 +254,11 @@ def resize_to_tactile(image: np.ndarray) -> np.ndarray:
 def tactile_size_problem(shape: tuple[int, ...], name: str) -> str | None:
     """``tactile_shape_problem``, but None for another size of the DIGIT image's proportions
     (``resizable_to_tactile``), which ``to_tactile_size`` resizes; the sentence says so where it applies."""
+    shape = tuple(int(n) for n in shape)
     if resizable_to_tactile(shape):
         return None
     problem = tactile_shape_problem(shape, name)
-    if problem is not None and len(shape) == 3 and shape[2] == 3 and "rotated" not in problem:
+    if problem is not None and len(shape) == 3 and shape[2] == 3 and not _looks_turned(shape):
         problem += "; an image of its proportions at another size (e.g. 480 wide x 640 high) is read resized"
     return problem
 
@@ -260,13 +266,20 @@ def tactile_size_problem(shape: tuple[int, ...], name: str) -> str | None:
 def to_tactile_size(image: np.ndarray, name: str) -> np.ndarray:
     """An image -> (320, 240, 3): as it is at the DIGIT's size, resized (``resize_to_tactile``) with an
     ``ImageSizeWarning`` at another size of its proportions; InputError naming it otherwise."""
-    import warnings
-
     from tactile6d.core.errors import InputError
 
     problem = tactile_size_problem(image.shape, name)
     if problem is not None:
         raise InputError(problem)
+    return sized_as_tactile(image, name)
+
+
+def sized_as_tactile(image: np.ndarray, name: str) -> np.ndarray:
+    """An image whose shape ``tactile_size_problem`` passed -> (320, 240, 3): as it is at the DIGIT's size, else
+    resized (``resize_to_tactile``) with an ``ImageSizeWarning`` naming it. For a caller that checked the shape
+    itself, before other checks of its own (``perception.inputs``); ``to_tactile_size`` checks and resizes."""
+    import warnings
+
     if image.shape == TACTILE_IMAGE_SHAPE:
         return image
     warnings.warn(ImageSizeWarning(name, image.shape[1], image.shape[0]), stacklevel=3)

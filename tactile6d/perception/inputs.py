@@ -29,7 +29,7 @@ from tactile6d.core.sensor import (
     bodies_overlap,
     contact_points,
 )
-from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE, tactile_size_problem, to_tactile_size
+from tactile6d.data.hdf5 import TACTILE_IMAGE_SHAPE, sized_as_tactile, tactile_size_problem
 
 
 # How far a sensor pose's rotation block may be from a rotation (largest entry of |R^T R - I|, and |det R - 1|)
@@ -69,7 +69,7 @@ def check_sensor_poses(T_world_sensors) -> np.ndarray:
 
 def check_images(images, n_sensors: int) -> np.ndarray:
     """L tactile images (an array or a sequence of arrays) -> (L, 320, 240, 3) uint8, one per sensor; an image
-    at another size of the DIGIT's proportions is resized to it (``hdf5.to_tactile_size``: an
+    at another size of the DIGIT's proportions is resized to it (``hdf5.sized_as_tactile``: an
     ``ImageSizeWarning``)."""
     if images is None:
         raise InputError("method 'ours' needs one tactile image per sensor, got none")
@@ -90,7 +90,7 @@ def check_images(images, n_sensors: int) -> np.ndarray:
         if image.dtype != np.uint8:
             raise InputError(f"image {i} has dtype {image.dtype}, tactile images must be uint8 (0-255) as the "
                              f"camera gives them{_uint8_hint(image.dtype)}")
-        checked.append(to_tactile_size(image, f"image {i}"))
+        checked.append(sized_as_tactile(image, f"image {i}"))
     return np.stack(checked)
 
 
@@ -131,7 +131,7 @@ def _check_background(background: np.ndarray, name: str) -> np.ndarray:
     if background.dtype != np.uint8:
         raise InputError(f"{name} has dtype {background.dtype}, no-contact images must be uint8 like the "
                          f"tactile images{_uint8_hint(background.dtype)}")
-    background = to_tactile_size(background, name)
+    background = sized_as_tactile(background, name)
     if is_grey(background):
         raise InputError(f"{name} is grey (its three channels are equal everywhere), but a DIGIT image is "
                          "RGB colour: read it in colour (tactile6d.data.hdf5.read_tactile_image, or cv2.imread without "
