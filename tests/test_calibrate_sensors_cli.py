@@ -14,7 +14,7 @@ from tactile6d import cli
 from tactile6d.core import geometry as g
 from tactile6d.core.sensor import GEL_CENTER, bodies_overlap, sensor_poses_touching
 from tactile6d.data import sequence_dirs
-from tactile6d.data.hdf5 import read_scene_dir, write_tactile_image
+from tactile6d.data.hdf5 import read_scene_dir, read_tactile_image, write_tactile_image
 from tactile6d.estimation.sensor_offsets import SensorOffsets, apply_sensor_offsets
 from tactile6d.sim.render import DigitRenderer
 from tactile6d.sim.surface_sampling import sample_surface_even
@@ -226,3 +226,51 @@ def test_no_contact_images_estimated_from_the_grasps(capsys, hand, tmp_path):
     code, _, err = run(capsys, "calibrate-sensors", "--object", OBJECT, "--scene", str(hand["folders"][0]),
                        "--artifacts", str(hand["artifacts"]), "--out", str(out), "--background", "from-scenes", *QUICK)
     assert code == 2 and "needs at least 5 scenes" in err
+
+
+@pytest.mark.slow
+def test_grasps_of_your_own_unit_are_read_against_it_given_as_a_known_unit(capsys, hand, tmp_path, data_dir,
+                                                                            monkeypatch):
+    """The grasps as a unit of the user's sees them, whose LEDs differ from every known unit's (the paper's unit's
+    no-contact image turned half a turn), once with its no-contact images in the folders and once without: given as
+    a known unit (--known-units), each image is read against it, as ``estimate`` reads it, and the offsets are those
+    fitted with the folders' own no-contact images; without, the images are misread against the default one."""
+    monkeypatch.setenv("TACTILE6D_DATA", str(data_dir))
+    unit = np.ascontiguousarray(read_tactile_image(data_dir / "digit" / "caddeo2023" / "background.png")[::-1, ::-1])
+    own, bare = [], []
+    for k in range(GRASPS):
+        for folders, with_backgrounds in ((own, True), (bare, False)):
+            folder = tmp_path / ("own" if with_backgrounds else "bare") / f"grasp_{k}"
+            folder.mkdir(parents=True)
+            for name in ("poses_sensors.txt", "object_pose.txt"):
+                (folder / name).write_bytes((hand["folders"][k] / name).read_bytes())
+            for i in range(3):
+                # rendered over the flat NO_CONTACT: the same presses over the user's unit
+                pressed = read_tactile_image(hand["folders"][k] / f"Image_heatmap_{i}.png").astype(np.int16)
+                write_tactile_image(folder / f"Image_heatmap_{i}.png",
+                                    np.clip(pressed - NO_CONTACT + unit, 0, 255).astype(np.uint8))
+                if with_backgrounds:
+                    write_tactile_image(folder / f"background_{i}.png", unit)
+            folders.append(str(folder))
+    units = tmp_path / "units"
+    units.mkdir()
+    write_tactile_image(units / "lab_unit_7.png", unit)
+    common = ["calibrate-sensors", "--object", OBJECT, "--artifacts", str(hand["artifacts"]), *QUICK]
+    code, _, err = run(capsys, *common, "--scene", *own, "--out", str(tmp_path / "own.json"))
+    assert code == 0, err
+    code, _, err = run(capsys, *common, "--scene", *bare, "--known-units", str(units), "--out",
+                       str(tmp_path / "known.json"))
+    assert code == 0, err
+    assert err.count("agrees with lab_unit_7's") == 3 * GRASPS, err
+    known = SensorOffsets.read(tmp_path / "known.json")
+    np.testing.assert_array_equal(known.offsets, SensorOffsets.read(tmp_path / "own.json").offsets)
+    code, _, err = run(capsys, *common, "--scene", *bare, "--out", str(tmp_path / "plain.json"))
+    assert "looks like another DIGIT unit's" in err and "lab_unit_7" not in err
+    assert code == 0, err
+    # Measured: read against the default no-contact image, offsets of 17-20 mm along the sensors' axes (the true
+    # biases are 1.5 mm per axis), against at most 2.3 mm read against the unit's own.
+    plain = SensorOffsets.read(tmp_path / "plain.json").translations_mm()
+    assert np.abs(plain).max() > 5 and np.abs(known.translations_mm()).max() < 5
+    code, _, err = run(capsys, *common, "--scene", *bare, "--known-units", str(units), "--background",
+                       str(units / "lab_unit_7.png"))
+    assert code == 2 and "give --background or --known-units, not both" in err

@@ -649,6 +649,9 @@ def test_your_own_units_are_known_beside_the_data_directorys(world, three_units,
     assert not any(w.category is photometric.UnitWarning for w in caught)
     given = mine.estimate(T, images, backgrounds=turned)
     np.testing.assert_array_equal(known.contacts.points, given.contacts.points)
+    with pytest.warns(photometric.KnownUnitWarning):  # the contacts alone, read as estimate reads them
+        _, read = mine.read_scene(T, images)
+    np.testing.assert_array_equal(read.points, given.contacts.points)
     np.testing.assert_array_equal(known.poses, given.poses)
     from tactile6d.estimation.identifier import Identifier  # identification reads the scene the same way
 

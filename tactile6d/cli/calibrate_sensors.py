@@ -18,7 +18,8 @@ gel's centre, in how many grasps the sensor touched, its contact points' RMS dis
 before and after (mm), and what the grasps leave uncertain (one standard deviation of the gel centre's shift
 along the sensor's axis and sideways: a press tells the first, a sideways slide over a smooth surface
 looks like no slide, so the second often stays near the prior; a note says so). A sensor that touched in no grasp keeps no offset, with
-a warning. Objects, artifacts, ``--background`` and config overrides as ``tactile6d estimate``.
+a warning. Objects, artifacts, ``--background``, ``--known-units`` and config overrides as ``tactile6d estimate``:
+the grasps' images are read as it reads them.
 """
 
 from __future__ import annotations
@@ -33,9 +34,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactile6d.cli import description
-from tactile6d.cli.estimate import (AUTO, FROM_SCENES, EstimatorCache, add_scene_arguments, background_option,
-                                    collect_scenes, object_of, read_scene_folder, split_overrides, warnings_to_lines,
-                                    write)
+from tactile6d.cli.estimate import (AUTO, FROM_SCENES, EstimatorCache, add_known_units_argument, add_scene_arguments,
+                                    background_option, collect_scenes, known_units_option, object_of,
+                                    read_scene_folder, split_overrides, warnings_to_lines, write)
 from tactile6d.cli.objects import KnownObjects
 from tactile6d.core.config import compose_config
 from tactile6d.core.errors import InputError
@@ -67,10 +68,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="the sensors' own no-contact image(s): one for every sensor or one per sensor, or "
                              f"'{FROM_SCENES}' (estimated from the grasps' images) as for `tactile6d estimate` "
                              "(default: each grasp folder's background_<i>.png, else render.background)")
+    add_known_units_argument(parser)
     parser.add_argument("overrides", nargs="*", help="config overrides key=value (Hydra syntax)")
     args = parser.parse_args(argv)
     args.scene, moved = split_overrides(args.scene, [])
     args.background, args.overrides = split_overrides(args.background, moved + list(args.overrides))
+    args.known_units, args.overrides = split_overrides(args.known_units, list(args.overrides))
     if not args.scene and args.scenes_root is None:
         parser.error("give --scene DIR [DIR ...] or --scenes-root DIR")
     return args
@@ -102,7 +105,8 @@ def object_pose_of(scene: Path, given: np.ndarray | None) -> np.ndarray:
 
 
 def read_grasp(scene: Path, name: str, cache: EstimatorCache, T_world_object: np.ndarray) -> KnownGrasp:
-    """One grasp: its images brought to their no-contact images' light and read as the estimator reads them."""
+    """One grasp: its images read as ``tactile6d estimate`` reads them (``Estimator.read_scene``: brought to their
+    no-contact images' light; without one of their own, read against the known unit's they agree with)."""
     from tactile6d.estimation.sensor_offsets import KnownGrasp  # the estimator's modules: not loaded for --help
 
     T_world_sensors, images, backgrounds, lines = read_scene_folder(scene, cache.background is not None)
@@ -111,9 +115,7 @@ def read_grasp(scene: Path, name: str, cache: EstimatorCache, T_world_object: np
     estimator = cache.load(name)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", photometric.LightWarning)
-        T, images = estimator.check_scene(T_world_sensors, images, backgrounds)
-        aligned, _ = estimator.align_light(images, backgrounds)
-        contacts = estimator.contacts(T, aligned, backgrounds)
+        T, contacts = estimator.read_scene(T_world_sensors, images, backgrounds)
     for line in warnings_to_lines(scene, caught):
         write(line, sys.stderr)
     return KnownGrasp(estimator.surface, T_world_object, T, contacts)
@@ -161,7 +163,8 @@ def main(argv: list[str]) -> int:
         known.get(args.object)
     given_pose = read_pose_file(Path(args.object_pose)) if args.object_pose else None
     scenes = collect_scenes(args)
-    cache = EstimatorCache(known, cfg, background_option(args.background, scenes))
+    cache = EstimatorCache(known, cfg, background_option(args.background, scenes),
+                           known_units=known_units_option(args.known_units, args.background))
     grasps = [read_grasp(scene, object_of(scene, args.object, known), cache, object_pose_of(scene, given_pose))
               for scene in scenes]
     rank, sigma_m, sigma_rad = cfg.rank, 1e-3 * cfg.sensors.pose_sigma_mm, np.radians(cfg.sensors.pose_sigma_deg)

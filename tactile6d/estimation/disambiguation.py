@@ -159,17 +159,15 @@ class Choice:
 def choose(estimator: Estimator, poses, T_world_sensors, images=None, backgrounds=None) -> Choice:
     """Poses already found (K, 4, 4) ``T_world_object`` told apart by the sensors at T_world_sensors (L, 4, 4) and
     their images, e.g. after one more touch (``touch_to_tell_apart``): the inputs checked and the images read as
-    ``Estimator.estimate`` reads them (each brought to its no-contact image's light first; backgrounds as for
-    ``estimate``), then each pose refined against every touching sensor's contact and patch and scored as the
-    ranking re-scores its candidates (``rank.refine_and_score``: a pose that presses a sensor whose image shows
-    none pays for it) -> ``Choice``, best first. No search: a pose not among ``poses`` is not found. A sensor
+    ``Estimator.estimate`` reads them (``Estimator.read_scene``: each brought to its no-contact image's light
+    first; backgrounds as for ``estimate``), then each pose refined against every touching sensor's contact and
+    patch and scored as the ranking re-scores its candidates (``rank.refine_and_score``: a pose that presses a
+    sensor whose image shows none pays for it) -> ``Choice``, best first. No search: a pose not among ``poses`` is not found. A sensor
     whose image shows no contact (a touch that met nothing) is expected here, and not warned about."""
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0:
         raise InputError(f"choose needs poses of shape (K, 4, 4), K >= 1, got {poses.shape}")
-    T, images = estimator.check_scene(T_world_sensors, images, backgrounds)
-    aligned, _ = estimator.align_light(images, backgrounds)
-    contacts = estimator.contacts(T, aligned, backgrounds)
+    T, contacts = estimator.read_scene(T_world_sensors, images, backgrounds)
     settings = estimator.settings
     scored = rank_step.refine_and_score(estimator.penetration_model, estimator.surface, estimator.mesh, poses, T,
                                         contacts, settings.rank, settings.sensors, int(settings.rank.refine_iterations))

@@ -379,6 +379,17 @@ class Estimator:
             return self._read_contacts(T, None, None)
         return self._read_contacts(T, check_images(images, T.shape[0]), self.backgrounds(T.shape[0], backgrounds))
 
+    def read_scene(self, T_world_sensors, images=None, backgrounds=None) -> tuple[np.ndarray, Contacts]:
+        """The sensor poses checked (L, 4, 4) and the sensors' contacts, read as ``estimate`` reads them: the inputs
+        checked (``check_scene``), each image brought to its no-contact image's light and, where the call passes no
+        no-contact images, read against the known unit's its own agrees with (``known_units``; a
+        ``photometric.KnownUnitWarning``). For a caller that needs the contacts of a scene without estimating
+        its pose (``tactile6d calibrate-sensors``, whose object pose is known)."""
+        T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)
+        if images is not None:
+            images, _, per_sensor, _ = self._read_light(images, per_sensor, backgrounds is None)
+        return T, self._read_contacts(T, images, per_sensor)
+
     def _read_contacts(self, T: np.ndarray, images: np.ndarray | None, per_sensor: np.ndarray | None) -> Contacts:
         """``contacts`` from checked inputs: sensor poses, images and no-contact images per sensor."""
         if not self.settings.select.reads_patches:

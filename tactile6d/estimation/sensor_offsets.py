@@ -71,7 +71,7 @@ class KnownGrasp:
     surface: the object's surface samples (``surface_sampling.SurfaceSamples``: ``points`` (S, 3), unit
     ``normals`` (S, 3), a cKDTree ``tree``), object frame; T_world_object (4, 4) the known pose;
     T_world_sensors (L, 4, 4) the sensor poses as the hand reported them; contacts: what the images say,
-    read through those poses (``Estimator.contacts``). Only sensors whose contact was read from their
+    read through those poses (``Estimator.read_scene``). Only sensors whose contact was read from their
     image count (``contacts.from_patch``): a landmark is where a contact would be, not where it is.
     """
 
