@@ -162,8 +162,9 @@ def choose(estimator: Estimator, poses, T_world_sensors, images=None, background
     ``Estimator.estimate`` reads them (``Estimator.read_scene``: each brought to its no-contact image's light
     first; backgrounds as for ``estimate``), then each pose refined against every touching sensor's contact and
     patch and scored as the ranking re-scores its candidates (``rank.refine_and_score``: a pose that presses a
-    sensor whose image shows none pays for it) -> ``Choice``, best first. No search: a pose not among ``poses`` is not found. A sensor
-    whose image shows no contact (a touch that met nothing) is expected here, and not warned about."""
+    sensor whose image shows none pays for it) -> ``Choice``, best first. No search: a pose not among ``poses``
+    is not found. A sensor whose image shows no contact (a touch that met nothing) is expected here, and not
+    warned about."""
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0:
         raise InputError(f"choose needs poses of shape (K, 4, 4), K >= 1, got {poses.shape}")
