@@ -139,6 +139,20 @@ class Estimate:
         }
 
 
+@dataclass(frozen=True)
+class ReadImages:
+    """What a checked scene's images say once read (``Estimator._read_images``): the images (L, 320, 240, 3) brought
+    to their no-contact images' light (None without images), their light fits (None where the light is not aligned),
+    the no-contact images per sensor they were read against, whether any of those is a known unit's, and the
+    sensors' contacts."""
+
+    images: np.ndarray | None
+    light: list[photometric.LightFit] | None
+    per_sensor: np.ndarray | None
+    known: bool
+    contacts: Contacts
+
+
 class Estimator:
     """Pose estimation for one object.
 
@@ -386,9 +400,17 @@ class Estimator:
         ``photometric.KnownUnitWarning``). For a caller that needs the contacts of a scene without estimating
         its pose (``tactile6d calibrate-sensors``, whose object pose is known)."""
         T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)
+        return T, self._read_images(T, images, per_sensor, backgrounds is None).contacts
+
+    def _read_images(self, T: np.ndarray, images: np.ndarray | None, per_sensor: np.ndarray | None,
+                     match_known_units: bool) -> ReadImages:
+        """A checked scene's images read, as ``estimate``, ``read_scene`` and the identifier read them: brought to
+        their no-contact images' light (``_read_light``, known units matched with ``match_known_units``), then their
+        contacts (``_read_contacts``)."""
+        light, known = None, False
         if images is not None:
-            images, _, per_sensor, _ = self._read_light(images, per_sensor, backgrounds is None)
-        return T, self._read_contacts(T, images, per_sensor)
+            images, light, per_sensor, known = self._read_light(images, per_sensor, match_known_units)
+        return ReadImages(images, light, per_sensor, known, self._read_contacts(T, images, per_sensor))
 
     def _read_contacts(self, T: np.ndarray, images: np.ndarray | None, per_sensor: np.ndarray | None) -> Contacts:
         """``contacts`` from checked inputs: sensor poses, images and no-contact images per sensor."""
@@ -440,10 +462,8 @@ class Estimator:
         start = time.perf_counter()
         T, images, per_sensor = self._checked_scene(T_world_sensors, images, backgrounds)  # the one check
         t0 = time.perf_counter()
-        light, known = None, False
-        if images is not None:
-            images, light, per_sensor, known = self._read_light(images, per_sensor, backgrounds is None)
-        contacts = self._read_contacts(T, images, per_sensor)
+        read = self._read_images(T, images, per_sensor, backgrounds is None)
+        images, per_sensor, contacts = read.images, read.per_sensor, read.contacts
         angles = None
         if self.settings.select.method == "ours":
             if self.encoder is None:
@@ -451,13 +471,13 @@ class Estimator:
             # A call's own no-contact images, or known units' read against, go to the encoder too; without, it
             # reads against its own.
             angles = encode_step.read_angles(self.encoder, self.settings.select, images, contacts, T, per_sensor,
-                                             per_sensor if backgrounds is not None or known else None)
+                                             per_sensor if backgrounds is not None or read.known else None)
         encode_seconds = time.perf_counter() - t0
-        estimate = self._estimate_checked(T, contacts, angles, photometric.from_another_unit(light))
+        estimate = self._estimate_checked(T, contacts, angles, photometric.from_another_unit(read.light))
         steps = {k: estimate.seconds[k] for k in STEPS[1:]}
         estimate.seconds.clear()
         estimate.seconds.update(encode=encode_seconds, **steps, total=time.perf_counter() - start)
-        return replace(estimate, light=light)
+        return replace(estimate, light=read.light)
 
     def estimate_encoded(self, T_world_sensors, contacts: Contacts, angles: np.ndarray | None) -> Estimate:
         """The ranked poses from what the images say, already read: the sensors' contacts (as ``contacts``

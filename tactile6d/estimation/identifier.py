@@ -276,18 +276,16 @@ class Identifier:
         """``encode``, also returning the checked sensor poses (L, 4, 4): the scene's one check."""
         first = self.full[self.names[0]]
         T, images, per_sensor = first._checked_scene(T_world_sensors, images, backgrounds)
-        known, fits = False, None
-        if images is not None:
-            images, fits, per_sensor, known = first._read_light(images, per_sensor, backgrounds is None)
-        contacts = first._read_contacts(T, images, per_sensor)
+        read = first._read_images(T, images, per_sensor, backgrounds is None)
+        misread = photometric.from_another_unit(read.light)
         if self.settings.select.method != "ours":
-            return T, SceneEncoding(contacts, None, photometric.from_another_unit(fits))
-        seen = encode_step.images_to_encode(self.settings.select, images, contacts, T, per_sensor)
+            return T, SceneEncoding(read.contacts, None, misread)
+        seen = encode_step.images_to_encode(self.settings.select, read.images, read.contacts, T, read.per_sensor)
         # A call's own backgrounds, or known units' read against, go to the encoder; without, it reads against its
         # own (as custom encoders do).
-        own = backgrounds is not None or known
-        latents = first.encoder.latents(seen, per_sensor) if own else first.encoder.latents(seen)
-        return T, SceneEncoding(contacts, latents, photometric.from_another_unit(fits))
+        own = backgrounds is not None or read.known
+        latents = first.encoder.latents(seen, read.per_sensor) if own else first.encoder.latents(seen)
+        return T, SceneEncoding(read.contacts, latents, misread)
 
     def candidate(self, name: str, T_world_sensors: np.ndarray, encoding: SceneEncoding) -> Candidate:
         """One object's screened estimate and features for an encoded scene, its sensor poses (L, 4, 4) as
