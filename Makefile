@@ -16,7 +16,7 @@ ifneq ($(DATA),)
 export TACTILE6D_DATA := $(abspath $(DATA))
 endif
 
-.PHONY: install test reproduce params clean-venv
+.PHONY: install test reproduce params clean-venv tacto-env
 
 # torch first and alone: a CPU wheel of 2.13.0 is what the machine has; any other request for torch
 # would pull several GB of CUDA packages.
@@ -54,3 +54,18 @@ params: install
 
 clean-venv:
 	rm -rf $(VENV)
+
+# TACTO, the simulator the paper rendered with, in an environment of its own for scripts/tacto_scenes.py (scenes
+# of another tool than this project's renderer). pyrender pins PyOpenGL 3.1.0, whose EGL loading fails on
+# Python 3.11, and urdfpy (imported by tacto) pins networkx 2.2: those three are installed without their pins.
+TACTO_VENV := .venv-tacto
+$(TACTO_VENV)/.installed:
+	$(PYTHON) -m venv $(TACTO_VENV)
+	$(TACTO_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(TACTO_VENV)/bin/python -m pip install --quiet numpy==2.4.6 scipy==1.17.1 trimesh==5.2.0 h5py==3.16.0 \
+		opencv-python-headless==5.0.0.93 PyOpenGL==3.1.7 omegaconf==2.3.1 pybullet==3.2.7 pyglet==1.5.31 \
+		freetype-py imageio networkx pillow six lxml pycollada
+	$(TACTO_VENV)/bin/python -m pip install --quiet --no-deps pyrender==0.1.45 urdfpy==0.0.22 tacto==0.0.3
+	touch $@
+
+tacto-env: $(TACTO_VENV)/.installed
