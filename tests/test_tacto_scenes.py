@@ -1,5 +1,6 @@
 """scripts/tacto_scenes.py without TACTO (it runs in its own environment, `make tacto-env`): the poses handed to
-TACTO, the scene set written back, the sets it refuses and the scratch folder beside the pipeline's artifacts."""
+TACTO, the scene set written back, the sets it refuses and the scratch folder beside the pipeline's artifacts;
+scripts/compare_scene_images.py, which compares such a set's images with the set it was rendered from."""
 
 import json
 
@@ -90,3 +91,30 @@ def test_the_scratch_folder_reads_as_the_artifacts_but_for_its_own_scenes(tmp_pa
     assert not (out / "scenes").is_symlink() and (out / "scenes" / "validation.h5").is_symlink()
     (out / "scenes" / "validation_tacto.h5").write_text("x")
     assert sorted(p.name for p in (artifacts / "scenes").iterdir()) == ["validation.h5"]
+
+
+compare_images = load_script("compare_scene_images")
+
+
+def _pressed(background, centre, radius):
+    """background (H, W, 3) with a disc brightened by 30 grey levels: a press as the masks see it."""
+    yy, xx = np.mgrid[: background.shape[0], : background.shape[1]]
+    image = background.astype(np.int16)
+    image[(yy - centre[0]) ** 2 + (xx - centre[1]) ** 2 < radius**2] += 30
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def test_two_renderings_of_the_same_scenes_are_compared_pair_by_pair():
+    background = np.full((320, 240, 3), 100, np.uint8)
+    a = {"T_world_object": np.tile(np.eye(4), (1, 1, 1)), "T_world_sensors": np.tile(np.eye(4), (1, 3, 1, 1))}
+    b = dict(a)
+    a["images"] = np.stack([[_pressed(background, (160, 120), 40), _pressed(background, (100, 100), 30), background]])
+    b["images"] = np.stack([[_pressed(background, (160, 120), 40), background, background]])
+    row = compare_images.compare_sets(a, b, background)
+    # the first pair the same press (IoU 1), the second a press against none (IoU 0; contact disagrees), the
+    # third untouched in both: left out of the IoU
+    assert row["pairs"] == 3 and row["contact_disagrees"] == pytest.approx(1 / 3, abs=1e-3)
+    assert row["iou_median"] == pytest.approx(0.5) and row["iou_p10"] == pytest.approx(0.1)
+    moved = dict(b, T_world_object=a["T_world_object"] + 1)
+    with pytest.raises(SystemExit, match="T_world_object"):
+        compare_images.compare_sets(a, moved, background)

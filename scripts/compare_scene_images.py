@@ -1,0 +1,69 @@
+"""Two renderings of the same scenes compared image by image, as `tactile6d fidelity` compares the paper's.
+
+    python scripts/compare_scene_images.py --artifacts ART --scenes validation --other validation_tacto
+
+Both sets under ``<artifacts>/scenes`` must hold the same scenes (names, objects and poses; e.g. a set and
+its rendering by TACTO, ``scripts/tacto_scenes.py``). Each sensor's two images are compared through their
+difference from the set's no-contact image (``tactile6d.evaluation.fidelity.compare``: IoU of the contact
+masks, correlation of the blurred differences); a pair in which neither image shows contact is left out of the
+IoU. Prints one JSON line: the median and 10th percentile of both over the pairs, and the share of pairs
+whose masks disagree on whether there is contact at all. Writes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
+
+from tactile6d.core.config import compose_config  # noqa: E402
+from tactile6d.data import layout  # noqa: E402
+from tactile6d.data.hdf5 import read_artifact  # noqa: E402
+from tactile6d.evaluation import fidelity  # noqa: E402
+from tactile6d.perception.encode import load_background  # noqa: E402
+from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
+
+
+def compare_sets(a: dict, b: dict, background: np.ndarray) -> dict:
+    """Scene sets a and b (mappings with ``images`` (N, L, H, W, 3) and the poses) of the same scenes -> the
+    summary printed (module docstring)."""
+    for key in ("T_world_object", "T_world_sensors"):
+        if not np.array_equal(np.asarray(a[key]), np.asarray(b[key])):
+            raise SystemExit(f"the two sets are not the same scenes: their {key} differ")
+    ious, corrs, contact_disagrees = [], [], 0
+    for image_a, image_b in zip(np.asarray(a["images"]).reshape(-1, *a["images"].shape[2:]),
+                                np.asarray(b["images"]).reshape(-1, *b["images"].shape[2:])):
+        pair = fidelity.compare(image_a, image_b, background)
+        touched = (fidelity.contact_mask(image_a, background).any(), fidelity.contact_mask(image_b, background).any())
+        contact_disagrees += touched[0] != touched[1]
+        if any(touched):
+            ious.append(pair["iou"])
+        corrs.append(pair["corr"])
+    ious, corrs = np.array(ious), np.array(corrs)
+    return {"pairs": len(corrs), "iou_median": round(float(np.median(ious)), 3),
+            "iou_p10": round(float(np.percentile(ious, 10)), 3), "corr_median": round(float(np.nanmedian(corrs)), 3),
+            "corr_p10": round(float(np.nanpercentile(corrs, 10)), 3),
+            "contact_disagrees": round(contact_disagrees / len(corrs), 3)}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--artifacts", default="artifacts")
+    parser.add_argument("--scenes", required=True, help="a scene set under <artifacts>/scenes")
+    parser.add_argument("--other", required=True, help="the same scenes rendered otherwise")
+    args = parser.parse_args()
+    a = read_artifact(layout.scenes_file(args.artifacts, args.scenes), "scenes")
+    b = read_artifact(layout.scenes_file(args.artifacts, args.other), "scenes")
+    background = load_background({**a.config, "paths": compose_config([]).paths})
+    print(json.dumps({"scenes": args.scenes, "other": args.other, **compare_sets(a, b, background)}))
+    return 0
+
+
+if __name__ == "__main__":
+    run_pinned()  # figures that repeat on every CPU, as the stages' do
+    raise SystemExit(main())
