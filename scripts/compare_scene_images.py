@@ -1,9 +1,10 @@
 """Two renderings of the same scenes compared image by image, as `tactile6d fidelity` compares the paper's.
 
-    python scripts/compare_scene_images.py --artifacts ART --scenes validation --other validation_tacto
+    python scripts/compare_scene_images.py artifacts/scenes/validation.h5 ART/scenes/validation_tacto.h5
+    python scripts/compare_scene_images.py artifacts/sequences/tracking.h5 ART/sequences/tracking.h5
 
-Both sets under ``<artifacts>/scenes`` must hold the same scenes (names, objects and poses; e.g. a set and
-its rendering by TACTO, ``scripts/tacto_scenes.py``). Each sensor's two images are compared through their
+Both files must hold the same scenes, or sequences (objects and poses; e.g. a set and its rendering by TACTO,
+``scripts/tacto_scenes.py``). Each sensor's two images are compared through their
 difference from the set's no-contact image (``tactile6d.evaluation.fidelity.compare``: IoU of the contact
 masks, correlation of the blurred differences); a pair in which neither image shows contact is left out of the
 IoU. Prints one JSON line: the median and 10th percentile of both over the pairs, and the share of pairs
@@ -17,12 +18,12 @@ import json
 import sys
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's tactile6d, not an installed one
 
 from tactile6d.core.config import compose_config  # noqa: E402
-from tactile6d.data import layout  # noqa: E402
 from tactile6d.data.hdf5 import read_artifact  # noqa: E402
 from tactile6d.evaluation import fidelity  # noqa: E402
 from tactile6d.perception.encode import load_background  # noqa: E402
@@ -30,14 +31,14 @@ from tactile6d.runtime.pinned_process import run_pinned  # noqa: E402
 
 
 def compare_sets(a: dict, b: dict, background: np.ndarray) -> dict:
-    """Scene sets a and b (mappings with ``images`` (N, L, H, W, 3) and the poses) of the same scenes -> the
-    summary printed (module docstring)."""
+    """Scene or sequence sets a and b (mappings with ``images`` (..., H, W, 3) and the poses) of the same scenes
+    -> the summary printed (module docstring)."""
     for key in ("T_world_object", "T_world_sensors"):
         if not np.array_equal(np.asarray(a[key]), np.asarray(b[key])):
             raise SystemExit(f"the two sets are not the same scenes: their {key} differ")
     ious, corrs, contact_disagrees = [], [], 0
-    for image_a, image_b in zip(np.asarray(a["images"]).reshape(-1, *a["images"].shape[2:]),
-                                np.asarray(b["images"]).reshape(-1, *b["images"].shape[2:])):
+    for image_a, image_b in zip(np.asarray(a["images"]).reshape(-1, *a["images"].shape[-3:]),
+                                np.asarray(b["images"]).reshape(-1, *b["images"].shape[-3:])):
         pair = fidelity.compare(image_a, image_b, background)
         touched = (fidelity.contact_mask(image_a, background).any(), fidelity.contact_mask(image_b, background).any())
         contact_disagrees += touched[0] != touched[1]
@@ -53,14 +54,14 @@ def compare_sets(a: dict, b: dict, background: np.ndarray) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--artifacts", default="artifacts")
-    parser.add_argument("--scenes", required=True, help="a scene set under <artifacts>/scenes")
-    parser.add_argument("--other", required=True, help="the same scenes rendered otherwise")
+    parser.add_argument("first", type=Path, help="a scenes or sequences artifact")
+    parser.add_argument("second", type=Path, help="the same scenes or sequences rendered otherwise")
     args = parser.parse_args()
-    a = read_artifact(layout.scenes_file(args.artifacts, args.scenes), "scenes")
-    b = read_artifact(layout.scenes_file(args.artifacts, args.other), "scenes")
+    with h5py.File(args.first, "r") as f:
+        schema = str(f.attrs.get("schema", ""))  # read_artifact checks it below
+    a, b = read_artifact(args.first, schema), read_artifact(args.second, schema)
     background = load_background({**a.config, "paths": compose_config([]).paths})
-    print(json.dumps({"scenes": args.scenes, "other": args.other, **compare_sets(a, b, background)}))
+    print(json.dumps({"first": str(args.first), "second": str(args.second), **compare_sets(a, b, background)}))
     return 0
 
 

@@ -2,23 +2,27 @@
 
     make tacto-env                                   # .venv-tacto: TACTO 0.0.3, pyrender, EGL (no display needed)
     .venv-tacto/bin/python scripts/tacto_scenes.py --artifacts artifacts --scenes validation offaxis --out ART
+    .venv-tacto/bin/python scripts/tacto_scenes.py --artifacts artifacts --scenes --sequences --out ART
 
 Runs in its own environment (``make tacto-env``), not the project's: TACTO pins an old PyOpenGL and imports
 urdfpy, and neither is needed anywhere else. It imports nothing of ``tactile6d``.
 
-For each scene of ``<artifacts>/scenes/<set>.h5`` (made by ``make_scenes``) it places the set's object, without
-its texture, at the scene's true pose and renders every sensor at its true pose with TACTO's ``Renderer`` and
-its shipped DIGIT configuration (``digit/tacto/config_digit.yml`` of the data directory: lights, gel, camera,
-noise of 7 grey levels), over the no-contact image the set was rendered over (its config's
-``render.background``), at 240 x 320. The object is not pushed by a force: the scene's press (the gel 1-2 mm
-into the object) is TACTO's geometry as given. TACTO's noise is drawn from NumPy's global generator, seeded
-by ``--seed`` and the scene's index, so a set is rendered again to the same bits on one machine.
+For each scene of ``<artifacts>/scenes/<set>.h5`` (made by ``make_scenes``), or each frame of the tracking
+sequences (``make_sequences``, rendered at the true sensor poses its images were made at), it places the object,
+without its texture, at its true pose and renders every sensor with TACTO's ``Renderer`` and its shipped DIGIT
+configuration (``digit/tacto/config_digit.yml`` of the data directory: lights, gel, camera, noise of 7 grey
+levels), over the no-contact image the set was rendered over (its config's ``render.background``), at 240 x 320.
+The object is not pushed by a force: the set's press (the gel 1-2 mm into the object) is TACTO's geometry as
+given. TACTO's noise is drawn from NumPy's global generator, seeded by ``--seed`` and the image's place, so a set
+is rendered again to the same bits on one machine.
 
-Writes ``<out>/scenes/<set>_tacto.h5``: the source file's every dataset and attribute, the images replaced, the
-scene set named ``<set>_tacto`` and a ``renderer`` attribute saying how it was made. Everything else the
-project's scripts read under ``--out`` (surfaces, databases, the autoencoder) is linked to ``--artifacts``, so
-that ``scripts/real_setup_check.py --artifacts <out> --scenes validation_tacto`` estimates the set under a real
-set-up's conditions without touching the pipeline's outputs. About 0.1 s an image on the 2-core machine.
+Writes ``<out>/scenes/<set>_tacto.h5``, and with ``--sequences`` ``<out>/sequences/tracking.h5`` (the name stage
+``evaluate_tracking`` reads): the source file's every dataset and attribute, the images replaced, the set named
+``<set>_tacto`` and a ``renderer`` attribute saying how it was made. Everything else under ``--out`` is linked to
+``--artifacts`` (surfaces, databases, the autoencoder), but for ``metrics/`` and ``times/``, which start empty
+there: ``scripts/real_setup_check.py --artifacts <out> --scenes validation_tacto`` and ``python -m
+stages.evaluate_tracking --params params.yaml paths.artifacts_dir=<out>`` then run on TACTO's images and write
+nothing into the pipeline's outputs. About 0.1 s an image on the 2-core machine.
 """
 
 from __future__ import annotations
@@ -73,18 +77,27 @@ def tacto_renderer(config: Path, background_file: Path):
 
 
 def read_set(source: Path) -> tuple[dict, dict]:
-    """A scene set file's datasets and root attributes, if its images are renders at the poses it gives."""
+    """A scene or sequence set file's datasets and root attributes, if its images are renders at its poses."""
     with h5py.File(source, "r") as f:
         datasets = {name: f[name][()] for name in f}
         attrs = dict(f.attrs)
     # kinematic's T_world_sensors are the poses reported, not those rendered at; variation's images are
     # perturbed after rendering, over no-contact images of their own. scripts/real_setup_check.py applies
-    # both to a set rendered here (conditions kinematic, light).
+    # both to a set rendered here (conditions kinematic, light). A sequence set keeps the poses its images were
+    # rendered at beside the reported ones (T_world_sensors_true).
     altered = sorted(k for k in datasets if k.startswith("pose_error") or k == "backgrounds")
     if altered:
         raise SystemExit(f"{source}: its images are not plain renders at its sensor poses ({', '.join(altered)}); "
                          "render a set such as validation or offaxis and perturb it with real_setup_check.py")
     return datasets, attrs
+
+
+def rendered_poses(datasets: dict) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Where a set's images were rendered: (T_world_object (N, 4, 4), T_world_sensors (N, L, 4, 4), the images'
+    leading shape), N the scenes, or the sequences' frames one after the other."""
+    sensors = datasets.get("T_world_sensors_true", datasets["T_world_sensors"])
+    lead = datasets["images"].shape[: sensors.ndim - 2]  # (N, L) for scenes, (S, F, L) for sequences
+    return (datasets["T_world_object"].reshape(-1, 4, 4), sensors.reshape(-1, lead[-1], 4, 4), lead)
 
 
 def render_set(source: Path, target: Path, data: Path, config: Path, seed: int) -> dict:
@@ -93,37 +106,39 @@ def render_set(source: Path, target: Path, data: Path, config: Path, seed: int) 
     renderer = tacto_renderer(config, data / scene_config["render"]["background"])
     objects = [o.decode() if isinstance(o, bytes) else str(o) for o in datasets["objects"]]
     meshes = {o: untextured(data / "ycb" / o / "textured_simple.obj") for o in sorted(set(objects))}
-    images = np.empty_like(datasets["images"])
+    T_objects, T_sensors, lead = rendered_poses(datasets)
+    per_object = len(T_objects) // len(objects)  # a sequence's frames share its object
+    images = np.empty((len(T_objects),) + datasets["images"].shape[len(lead) - 1 :], np.uint8)
     start = time.time()
-    for i, obj in enumerate(objects):
-        position, orientation = euler_xyz(datasets["T_world_object"][i])
-        renderer.add_object(meshes[obj], "object", position=position, orientation=orientation)
-        for s, T_sensor in enumerate(datasets["T_world_sensors"][i]):
+    for i, (T_object, T_frame) in enumerate(zip(T_objects, T_sensors)):
+        renderer.add_object(meshes[objects[i // per_object]], "object", *euler_xyz(T_object))
+        for k, T_sensor in enumerate(T_frame):
             renderer.update_camera_pose(*euler_xyz(T_sensor))
-            np.random.seed([seed, i, s])  # TACTO draws its noise from the global generator
+            np.random.seed([seed, i, k])  # TACTO draws its noise from the global generator
             colors, _ = renderer.render()
-            images[i, s] = colors[0]
+            images[i, k] = colors[0]
         renderer.scene.remove_node(renderer.object_nodes.pop("object"))
         renderer.current_object_nodes.pop("object")
     seconds = time.time() - start
     note = {"tool": "tacto 0.0.3 Renderer", "config": str(config.relative_to(data)),
             "background": scene_config["render"]["background"], "seed": seed,
-            "object": "untextured mesh at the scene's true pose, no force"}
-    name = write_images_as_set(datasets, attrs, images, target, "tacto", note)
-    return {"scene_set": name, "scenes": len(objects), "images": int(images.shape[0] * images.shape[1]),
-            "seconds": round(seconds, 1), "file": str(target)}
+            "object": "untextured mesh at the true pose, no force"}
+    name = write_images_as_set(datasets, attrs, images.reshape(datasets["images"].shape), target, "tacto", note)
+    return {"set": name, "images": int(images.shape[0] * images.shape[1]), "seconds": round(seconds, 1),
+            "file": str(target)}
 
 
 def write_images_as_set(datasets: dict, attrs: dict, images: np.ndarray, target: Path, suffix: str,
                         note: dict) -> str:
-    """Write a scene set's datasets and attributes (as read from its file) to ``target`` with ``images``
-    (N, L, 320, 240, 3) uint8 in place of its own, named ``<set>_<suffix>``, ``note`` in its ``renderer``
-    attribute. Returns the new set's name."""
+    """Write a scene or sequence set's datasets and attributes (as read from its file) to ``target`` with
+    ``images`` (..., L, 320, 240, 3) uint8 in place of its own, named ``<set>_<suffix>`` (attribute ``scene_set``
+    or ``sequence_set``), ``note`` in its ``renderer`` attribute. Returns the new set's name."""
     if images.shape != datasets["images"].shape or images.dtype != np.uint8:
         raise ValueError(f"images {images.shape} {images.dtype}, the set's are {datasets['images'].shape} uint8")
     attrs = dict(attrs)
-    name = f"{json.loads(attrs['scene_set'])}_{suffix}"
-    attrs["scene_set"] = json.dumps(name)
+    key = "scene_set" if "scene_set" in attrs else "sequence_set"
+    name = f"{json.loads(attrs[key])}_{suffix}"
+    attrs[key] = json.dumps(name)
     attrs["renderer"] = json.dumps(note)
     target.parent.mkdir(parents=True, exist_ok=True)
     with h5py.File(target, "w") as f:
@@ -137,25 +152,37 @@ def write_images_as_set(datasets: dict, attrs: dict, images: np.ndarray, target:
     return name
 
 
+# The scratch folder's own folders: the sets rendered here (beside links to the source's) and what a stage or
+# script run on the scratch folder writes (metrics/, times/), which must not reach the pipeline's outputs.
+OWN_FOLDERS = ("scenes", "sequences", "metrics", "times")
+LINKED_FILES = ("scenes", "sequences")
+
+
 def link_artifacts(artifacts: Path, out: Path) -> None:
-    """Make ``out`` read as ``artifacts`` (each entry linked) but for its own ``scenes/`` folder, which links
-    the source's scene files beside the ones written here."""
+    """Make ``out`` read as ``artifacts``: each entry linked, but for ``OWN_FOLDERS``, folders of its own;
+    ``scenes/`` and ``sequences/`` hold links to the source's files, ``metrics/`` and ``times/`` start empty."""
     out.mkdir(parents=True, exist_ok=True)
     for entry in artifacts.iterdir():
         link = out / entry.name
-        if entry.name != "scenes" and not link.exists():
+        if entry.name not in OWN_FOLDERS and not link.exists():
             link.symlink_to(entry.resolve())
-    (out / "scenes").mkdir(exist_ok=True)
-    for scene_file in (artifacts / "scenes").iterdir():
-        link = out / "scenes" / scene_file.name
-        if not link.exists():
-            link.symlink_to(scene_file.resolve())
+    for folder in OWN_FOLDERS:
+        if (out / folder).is_symlink():  # a folder linked by hand: what is written here would land in the source
+            raise SystemExit(f"{out / folder} is a link; --out must have a {folder}/ folder of its own")
+        (out / folder).mkdir(exist_ok=True)
+    for folder in LINKED_FILES:
+        for source in (artifacts / folder).glob("*") if (artifacts / folder).is_dir() else ():
+            link = out / folder / source.name
+            if not link.exists():
+                link.symlink_to(source.resolve())
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--artifacts", type=Path, default=Path("artifacts"))
-    parser.add_argument("--scenes", nargs="+", default=["validation"], help="scene sets under <artifacts>/scenes")
+    parser.add_argument("--scenes", nargs="*", default=["validation"], help="scene sets under <artifacts>/scenes")
+    parser.add_argument("--sequences", action="store_true",
+                        help="also the tracking sequences (sequences/tracking.h5), written under the same name")
     parser.add_argument("--out", type=Path, required=True, help="a scratch artifacts folder (linked to --artifacts)")
     parser.add_argument("--seed", type=int, default=0, help="TACTO's camera noise")
     args = parser.parse_args()
@@ -167,6 +194,11 @@ def main() -> int:
     for scene_set in args.scenes:
         source = args.artifacts / "scenes" / f"{scene_set}.h5"
         print(json.dumps(render_set(source, args.out / "scenes" / f"{scene_set}_tacto.h5", data, config, args.seed)))
+    if args.sequences:
+        # stage evaluate_tracking reads sequences/tracking.h5: the rendered set takes its place under --out
+        target = args.out / "sequences" / "tracking.h5"
+        target.unlink(missing_ok=True)  # the link to the pipeline's file
+        print(json.dumps(render_set(args.artifacts / "sequences" / "tracking.h5", target, data, config, args.seed)))
     return 0
 
 

@@ -79,18 +79,46 @@ def test_a_set_whose_images_are_not_renders_at_its_poses_is_refused(tmp_path, ex
         tacto_scenes.read_set(source)
 
 
-def test_the_scratch_folder_reads_as_the_artifacts_but_for_its_own_scenes(tmp_path):
+def test_the_scratch_folder_reads_as_the_artifacts_but_writes_apart_from_them(tmp_path):
     artifacts = tmp_path / "artifacts"
     _write(artifacts, "validation", _scene_set())
-    (artifacts / "ae").mkdir()
-    (artifacts / "ae" / "weights.pt").write_text("w")
+    for folder, name in (("ae", "weights.pt"), ("sequences", "tracking.h5"), ("metrics", "tracking.json")):
+        (artifacts / folder).mkdir()
+        (artifacts / folder / name).write_text(folder)
     out = tmp_path / "out"
     tacto_scenes.link_artifacts(artifacts, out)
     tacto_scenes.link_artifacts(artifacts, out)  # again: what is there is kept
-    assert (out / "ae").is_symlink() and (out / "ae" / "weights.pt").read_text() == "w"
-    assert not (out / "scenes").is_symlink() and (out / "scenes" / "validation.h5").is_symlink()
+    assert (out / "ae").is_symlink() and (out / "ae" / "weights.pt").read_text() == "ae"
+    for folder in ("scenes", "sequences", "metrics", "times"):
+        assert (out / folder).is_dir() and not (out / folder).is_symlink()
+    assert (out / "scenes" / "validation.h5").is_symlink() and (out / "sequences" / "tracking.h5").is_symlink()
+    # what a stage run on the scratch folder writes stays there
+    assert list((out / "metrics").iterdir()) == [] and list((out / "times").iterdir()) == []
     (out / "scenes" / "validation_tacto.h5").write_text("x")
     assert sorted(p.name for p in (artifacts / "scenes").iterdir()) == ["validation.h5"]
+    linked_by_hand = tmp_path / "by_hand"
+    linked_by_hand.mkdir()
+    (linked_by_hand / "metrics").symlink_to(artifacts / "metrics")
+    with pytest.raises(SystemExit, match="metrics"):
+        tacto_scenes.link_artifacts(artifacts, linked_by_hand)
+
+
+def test_sequences_are_rendered_frame_by_frame_at_the_poses_their_images_were_made_at():
+    """A sequence set's frames in order, each at its true sensor poses (not those the hand reports); a scene
+    set's scenes at its sensor poses."""
+    rng = np.random.default_rng(0)
+    S, F, L = 2, 4, 3
+    sequences = {"images": np.zeros((S, F, L, 320, 240, 3), np.uint8),
+                 "T_world_object": rng.normal(size=(S, F, 4, 4)),
+                 "T_world_sensors": rng.normal(size=(S, F, L, 4, 4)),
+                 "T_world_sensors_true": rng.normal(size=(S, F, L, 4, 4))}
+    T_objects, T_sensors, lead = tacto_scenes.rendered_poses(sequences)
+    assert lead == (S, F, L) and T_objects.shape == (S * F, 4, 4) and T_sensors.shape == (S * F, L, 4, 4)
+    assert np.array_equal(T_objects[F + 2], sequences["T_world_object"][1, 2])
+    assert np.array_equal(T_sensors[F + 2], sequences["T_world_sensors_true"][1, 2])
+    scenes = _scene_set(n=3).as_datasets()
+    T_objects, T_sensors, lead = tacto_scenes.rendered_poses(scenes)
+    assert lead == (3, 3) and np.array_equal(T_sensors, scenes["T_world_sensors"])
 
 
 compare_images = load_script("compare_scene_images")
@@ -118,3 +146,13 @@ def test_two_renderings_of_the_same_scenes_are_compared_pair_by_pair():
     moved = dict(b, T_world_object=a["T_world_object"] + 1)
     with pytest.raises(SystemExit, match="T_world_object"):
         compare_images.compare_sets(a, moved, background)
+
+
+def test_a_sequence_set_is_written_under_its_own_name_attribute(tmp_path):
+    datasets = {"images": np.zeros((1, 2, 3, 320, 240, 3), np.uint8), "fps": np.array(30.0)}
+    attrs = {"schema": "sequences", "sequence_set": json.dumps("tracking")}
+    new = np.ones_like(datasets["images"])
+    name = tacto_scenes.write_images_as_set(datasets, attrs, new, tmp_path / "tracking.h5", "tacto", {"seed": 0})
+    with h5py.File(tmp_path / "tracking.h5") as f:
+        assert name == "tracking_tacto" and json.loads(f.attrs["sequence_set"]) == "tracking_tacto"
+        assert "scene_set" not in f.attrs and np.array_equal(f["images"][()], new) and f["fps"][()] == 30.0
