@@ -13,8 +13,9 @@ without its texture, at its true pose and renders every sensor with TACTO's ``Re
 configuration (``digit/tacto/config_digit.yml`` of the data directory: lights, gel, camera, noise of 7 grey
 levels), over the no-contact image the set was rendered over (its config's ``render.background``), at 240 x 320.
 The object is not pushed by a force: the set's press (the gel 1-2 mm into the object) is TACTO's geometry as
-given. TACTO's noise is drawn from NumPy's global generator, seeded by ``--seed`` and the image's place, so a set
-is rendered again to the same bits on one machine.
+given (``--deeper MM`` first moves every sensor of a scene set that much further in, or out, along its axis).
+TACTO's noise is drawn from NumPy's global generator, seeded by ``--seed`` and the image's place, so a set is
+rendered again to the same bits on one machine.
 
 Writes ``<out>/scenes/<set>_tacto.h5``, and with ``--sequences`` ``<out>/sequences/tracking.h5`` (the name stage
 ``evaluate_tracking`` reads): the source file's every dataset and attribute, the images replaced, the set named
@@ -100,8 +101,22 @@ def rendered_poses(datasets: dict) -> tuple[np.ndarray, np.ndarray, tuple]:
     return (datasets["T_world_object"].reshape(-1, 4, 4), sensors.reshape(-1, lead[-1], 4, 4), lead)
 
 
-def render_set(source: Path, target: Path, data: Path, config: Path, seed: int) -> dict:
+def pressed_further(T_world_sensors: np.ndarray, distance: float) -> np.ndarray:
+    """(..., 4, 4) sensor poses -> the same poses moved ``distance`` m along each sensor's +x axis, the way its
+    camera looks and its gel faces: a press that much deeper (shallower if negative)."""
+    moved = np.array(T_world_sensors, dtype=np.float64, copy=True)
+    moved[..., :3, 3] += distance * moved[..., :3, 0]
+    return moved
+
+
+def render_set(source: Path, target: Path, data: Path, config: Path, seed: int, deeper: float = 0.0) -> dict:
+    """Render ``source``'s set with TACTO into ``target`` (module docstring); ``deeper`` (m): every sensor
+    pressed that much further than the set's press, its poses in the file moved alike (not for sequences)."""
     datasets, attrs = read_set(source)
+    if deeper:
+        if "T_world_sensors_true" in datasets:
+            raise SystemExit("--deeper applies to scene sets, not to sequences")
+        datasets["T_world_sensors"] = pressed_further(datasets["T_world_sensors"], deeper)
     scene_config = json.loads(attrs["config"])
     renderer = tacto_renderer(config, data / scene_config["render"]["background"])
     objects = [o.decode() if isinstance(o, bytes) else str(o) for o in datasets["objects"]]
@@ -122,7 +137,7 @@ def render_set(source: Path, target: Path, data: Path, config: Path, seed: int) 
     seconds = time.time() - start
     note = {"tool": "tacto 0.0.3 Renderer", "config": str(config.relative_to(data)),
             "background": scene_config["render"]["background"], "seed": seed,
-            "object": "untextured mesh at the true pose, no force"}
+            "object": "untextured mesh at the true pose, no force", "deeper_m": deeper}
     name = write_images_as_set(datasets, attrs, images.reshape(datasets["images"].shape), target, "tacto", note)
     return {"set": name, "images": int(images.shape[0] * images.shape[1]), "seconds": round(seconds, 1),
             "file": str(target)}
@@ -185,6 +200,8 @@ def main() -> int:
                         help="also the tracking sequences (sequences/tracking.h5), written under the same name")
     parser.add_argument("--out", type=Path, required=True, help="a scratch artifacts folder (linked to --artifacts)")
     parser.add_argument("--seed", type=int, default=0, help="TACTO's camera noise")
+    parser.add_argument("--deeper", type=float, default=0.0,
+                        help="mm: every sensor of the scene sets pressed that much deeper (negative: shallower)")
     args = parser.parse_args()
     data = data_dir()
     config = data / "digit" / "tacto" / "config_digit.yml"
@@ -193,7 +210,8 @@ def main() -> int:
     link_artifacts(args.artifacts, args.out)
     for scene_set in args.scenes:
         source = args.artifacts / "scenes" / f"{scene_set}.h5"
-        print(json.dumps(render_set(source, args.out / "scenes" / f"{scene_set}_tacto.h5", data, config, args.seed)))
+        print(json.dumps(render_set(source, args.out / "scenes" / f"{scene_set}_tacto.h5", data, config, args.seed,
+                                    args.deeper / 1000)))
     if args.sequences:
         # stage evaluate_tracking reads sequences/tracking.h5: the rendered set takes its place under --out
         target = args.out / "sequences" / "tracking.h5"

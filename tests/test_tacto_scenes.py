@@ -156,3 +156,16 @@ def test_a_sequence_set_is_written_under_its_own_name_attribute(tmp_path):
     with h5py.File(tmp_path / "tracking.h5") as f:
         assert name == "tracking_tacto" and json.loads(f.attrs["sequence_set"]) == "tracking_tacto"
         assert "scene_set" not in f.attrs and np.array_equal(f["images"][()], new) and f["fps"][()] == 30.0
+
+
+def test_a_deeper_press_moves_each_sensor_along_its_own_axis():
+    rotations = Rotation.random(6, random_state=1).as_matrix().reshape(2, 3, 3, 3)
+    T = np.tile(np.eye(4), (2, 3, 1, 1))
+    T[..., :3, :3] = rotations
+    T[..., :3, 3] = np.random.default_rng(1).normal(0, 0.05, (2, 3, 3))
+    moved = tacto_scenes.pressed_further(T, 0.0015)
+    # in each sensor's own frame the move is +1.5 mm along x; orientations and the input are left alone
+    local = np.linalg.inv(T) @ moved
+    assert np.allclose(local[..., :3, 3], [0.0015, 0.0, 0.0], atol=1e-12)
+    assert np.array_equal(moved[..., :3, :3], T[..., :3, :3]) and not np.shares_memory(moved, T)
+    assert np.allclose(tacto_scenes.pressed_further(moved, -0.0015), T, atol=1e-12)
