@@ -56,8 +56,10 @@ averaged over objects and the failures; ``--out PREFIX`` also writes each condit
 ``PREFIX<condition>.npz``, which ``scripts/compare_errors.py`` pairs scene by scene with another run's. ``--light-fits`` adds how well the light was fitted (``clean``, ``light`` and ``slight``):
 over the images, the median and 90th percentile of the fit's error against the drift drawn (none
 for ``clean``), in gain and gamma (the channel farthest off), the share of blocks outside the fit and how many
-images the fit was applied to (``photometric.align_images``, the fits the estimator makes). The test set is looked at after a decision, never to make one:
-tune on the generated sets.
+images the fit was applied to (``photometric.align_images``, the fits the estimator makes). ``--confidence`` adds
+how the estimates' calibrated confidence sorts them (``Estimate.confidence``, P(best pose within 1 cm ADI)): its
+AUROC for that success, the share right and the mean confidence, and the share flagged ambiguous. The test set is
+looked at after a decision, never to make one: tune on the generated sets.
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 from tactile6d.core.config import compose_config
 from tactile6d.data import layout
 from tactile6d.data.hdf5 import read_artifact
+from tactile6d.estimation import confidence as confidence_model
 from tactile6d.estimation.estimator import Estimator
 from tactile6d.estimation.optimize import use_cpu_devices_for
 from tactile6d.evaluation import scoring
@@ -235,6 +238,31 @@ def write_errors(path: str, objects: np.ndarray, errors: dict[str, np.ndarray]) 
     np.savez(path, objects=np.asarray(objects), **errors)
 
 
+class RecordingEstimator:
+    """An estimator that keeps the last estimate it made, for the figures ``estimate_and_score`` does not return
+    (the confidence and the ambiguity flag)."""
+
+    def __init__(self, estimator: Estimator):
+        self.estimator, self.last = estimator, None
+
+    def estimate(self, *args, **kwargs):
+        self.last = None  # an estimate that raises leaves nothing behind
+        self.last = self.estimator.estimate(*args, **kwargs)
+        return self.last
+
+
+def confidence_row(confidence: np.ndarray, ambiguous: np.ndarray, top1_adi: np.ndarray) -> dict[str, float]:
+    """Scenes' confidences (S,) (NaN where no estimate), ambiguity flags (S,) and best-pose ADI (S,) m -> the
+    confidence's AUROC for ADI under ``confidence.SUCCESS_ADI``, the share right, the mean confidence and the share
+    flagged ambiguous (failed estimates count as wrong, with confidence 0)."""
+    right = np.nan_to_num(top1_adi, nan=np.inf) < confidence_model.SUCCESS_ADI
+    p = np.nan_to_num(confidence, nan=0.0)
+    return {"confidence_auroc": round(float(confidence_model.auroc(p, right)), 3),
+            "share_right_pct": round(100.0 * float(right.mean()), 1),
+            "mean_confidence_pct": round(100.0 * float(p.mean()), 1),
+            "ambiguous_pct": round(100.0 * float(np.mean(ambiguous)), 1)}
+
+
 def summary_row(errors: dict[str, np.ndarray], objects: np.ndarray) -> dict[str, float]:
     """The figures of one condition: errors as ``scoring.scene_errors`` gives them, stacked over scenes
     (S, K), objects (S,) -> the best pose's positional error mean and median (cm), the share within
@@ -256,6 +284,7 @@ def main() -> int:
                         help="default: issue 34's four (clean noise light kinematic)")
     parser.add_argument("--seed", type=int, default=0, help="of the perturbations drawn")
     parser.add_argument("--light-fits", action="store_true", help="also how well the light was fitted (module docstring)")
+    parser.add_argument("--confidence", action="store_true", help="also how the confidence sorts the estimates")
     parser.add_argument("--out", help="write each condition's per-scene errors to OUT<condition>.npz (as eval_accuracy.py "
                                       "--out does), for scripts/compare_errors.py")
     parser.add_argument("--no-level-shift", action="store_true",
@@ -284,7 +313,7 @@ def main() -> int:
             with_drawer = with_drawer or {o: Estimator.from_artifacts(o, args.artifacts, cfg, known_units=drawer)
                                           for o in estimators}
             chosen = with_drawer
-        rows, failed = {key: [] for key in ERROR_KEYS}, 0
+        rows, failed, confidences, ambiguous = {key: [] for key in ERROR_KEYS}, 0, [], []
         for s, obj in enumerate(clean.objects.tolist()):
             images, own = scene_set.images[s], scene_set.backgrounds_of(s)
             if condition in SIZES:
@@ -292,9 +321,13 @@ def main() -> int:
                 own = at_size(background if own is None else own, *SIZES[condition])
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                scored = estimate_and_score(chosen[obj], scene_set.T_world_sensors[s], images,
+                recorder = RecordingEstimator(chosen[obj])
+                scored = estimate_and_score(recorder, scene_set.T_world_sensors[s], images,
                                             scene_set.T_world_object[s], references[obj], own)
             failed += scored.seconds is None
+            estimate = recorder.last
+            confidences.append(np.nan if estimate is None or estimate.confidence is None else estimate.confidence)
+            ambiguous.append(bool(estimate is not None and estimate.ambiguous))
             for key, values in rows.items():
                 values.append(scored.errors[key])
         errors = {key: np.array(v) for key, v in rows.items()}
@@ -312,7 +345,9 @@ def main() -> int:
         print(json.dumps({"scenes": args.scenes, "condition": condition, "overrides": args.overrides,
                           **({"no_level_shift": True} if args.no_level_shift else {}),
                           "seed": args.seed, "n": len(clean), "failed": int(failed),
-                          **summary_row(errors, clean.objects), **light}), flush=True)
+                          **summary_row(errors, clean.objects), **light,
+                          **(confidence_row(np.array(confidences), np.array(ambiguous), errors["adi"][:, 0])
+                             if args.confidence else {})}), flush=True)
     return 0
 
 

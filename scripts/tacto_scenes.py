@@ -157,12 +157,12 @@ def write_images_as_set(datasets: dict, attrs: dict, images: np.ndarray, target:
     attrs["renderer"] = json.dumps(note)
     target.parent.mkdir(parents=True, exist_ok=True)
     with h5py.File(target, "w") as f:
-        for key, value in datasets.items():
-            value = images if key == "images" else value
+        for dataset, value in datasets.items():
+            value = images if dataset == "images" else value
             if value.dtype == object:
-                f.create_dataset(key, data=value, dtype=h5py.string_dtype())
+                f.create_dataset(dataset, data=value, dtype=h5py.string_dtype())
             else:
-                f.create_dataset(key, data=value, compression="gzip" if key == "images" else None)
+                f.create_dataset(dataset, data=value, compression="gzip" if dataset == "images" else None)
         f.attrs.update(attrs)
     return name
 

@@ -243,3 +243,34 @@ def test_the_size_conditions_give_the_images_at_another_resolution():
     large = check.at_size(s.images[0, 0], *check.SIZES["vga"])
     assert large.shape == (640, 480, 3)
     assert abs(large.astype(float).mean() - s.images[0, 0].mean()) < 0.5
+
+
+def test_the_confidence_row_against_a_naive_count():
+    confidence = np.array([0.9, 0.8, np.nan, 0.3, 0.6, 0.2])
+    ambiguous = np.array([False, True, False, False, True, False])
+    adi = np.array([0.002, 0.004, np.nan, 0.03, 0.012, 0.001])  # m; the third failed
+    row = check.confidence_row(confidence, ambiguous, adi)
+    right = [0.9, 0.8, 0.2]  # ADI under 1 cm
+    wrong = [0.0, 0.3, 0.6]  # the failed estimate counts as wrong, at confidence 0
+    pairs = [(r > w) + 0.5 * (r == w) for r in right for w in wrong]
+    assert row["confidence_auroc"] == pytest.approx(np.mean(pairs), abs=1e-3)
+    assert row["share_right_pct"] == 50.0 and row["ambiguous_pct"] == pytest.approx(100 / 3, abs=0.1)
+    assert row["mean_confidence_pct"] == pytest.approx(100 * (0.9 + 0.8 + 0.3 + 0.6 + 0.2) / 6, abs=0.1)
+
+
+def test_the_recording_estimator_keeps_the_last_estimate_and_forgets_it_when_one_raises():
+    class Stub:
+        def __init__(self):
+            self.calls = 0
+
+        def estimate(self, *args, **kwargs):
+            self.calls += 1
+            if self.calls == 2:
+                raise ValueError("no match")
+            return ("estimate", args, kwargs)
+
+    recorder = check.RecordingEstimator(Stub())
+    assert recorder.estimate(1, 2, backgrounds=3) == ("estimate", (1, 2), {"backgrounds": 3}) == recorder.last
+    with pytest.raises(ValueError):
+        recorder.estimate(4)
+    assert recorder.last is None
