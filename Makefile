@@ -16,7 +16,7 @@ ifneq ($(DATA),)
 export TACTILE6D_DATA := $(abspath $(DATA))
 endif
 
-.PHONY: install test reproduce params clean-venv tacto-env
+.PHONY: install test reproduce params clean-venv tacto-env tacto-check
 
 # torch first and alone: a CPU wheel of 2.13.0 is what the machine has; any other request for torch
 # would pull several GB of CUDA packages.
@@ -69,3 +69,13 @@ $(TACTO_VENV)/.installed:
 	touch $@
 
 tacto-env: $(TACTO_VENV)/.installed
+
+# Issue 34's conditions on scenes TACTO renders (docs/real_sensors.md): the validation scenes of a run's artifacts
+# (make reproduce) rendered again by TACTO into $(TACTO_ART), their images compared with this renderer's, then
+# estimated under each condition, one JSON line each. About 5 minutes on the 2-core machine.
+TACTO_ART ?= artifacts-tacto
+tacto-check: install $(TACTO_VENV)/.installed
+	$(TACTO_VENV)/bin/python scripts/tacto_scenes.py --artifacts artifacts --scenes validation --out $(TACTO_ART)
+	$(BIN)/python scripts/compare_scene_images.py artifacts/scenes/validation.h5 $(TACTO_ART)/scenes/validation_tacto.h5
+	$(BIN)/python scripts/real_setup_check.py --artifacts $(TACTO_ART) --scenes validation_tacto --confidence \
+		--conditions clean noise light kinematic other-unit
