@@ -8,7 +8,9 @@ Both files must hold the same scenes, or sequences (objects and poses; e.g. a se
 difference from the set's no-contact image (``tactile6d.evaluation.fidelity.compare``: IoU of the contact
 masks, correlation of the blurred differences); a pair in which neither image shows contact is left out of the
 IoU. Prints one JSON line: the median and 10th percentile of both over the pairs, and the share of pairs
-whose masks disagree on whether there is contact at all. Writes nothing.
+whose masks disagree on whether there is contact at all. ``--montage PATH`` also draws the first sensor of
+``--rows`` scenes spread over the set (``fidelity.montage``: the second file's imprint, the first's, their
+difference; ``--names`` titles them); nothing else is written.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import json
 import sys
 from pathlib import Path
 
+import cv2
 import h5py
 import numpy as np
 
@@ -56,13 +59,32 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("first", type=Path, help="a scenes or sequences artifact")
     parser.add_argument("second", type=Path, help="the same scenes or sequences rendered otherwise")
+    parser.add_argument("--montage", type=Path, help="write a picture of a few pairs here (.png or .jpg)")
+    parser.add_argument("--rows", type=int, default=4, help="scenes in the montage")
+    parser.add_argument("--names", nargs=2, default=["second", "first"], help="the second's and the first's titles")
     args = parser.parse_args()
     with h5py.File(args.first, "r") as f:
         schema = str(f.attrs.get("schema", ""))  # read_artifact checks it below
     a, b = read_artifact(args.first, schema), read_artifact(args.second, schema)
     background = load_background({**a.config, "paths": compose_config([]).paths})
     print(json.dumps({"first": str(args.first), "second": str(args.second), **compare_sets(a, b, background)}))
+    if args.montage:
+        write_montage(args.montage, a, b, background, args.rows, tuple(args.names))
     return 0
+
+
+def write_montage(path: Path, a, b, background: np.ndarray, rows: int, names: tuple[str, str]) -> None:
+    """The first sensor of ``rows`` scenes spread evenly over the set: b's imprint, a's, b - a (RGB in, the file
+    written as RGB)."""
+    first_sensor = np.asarray(a["images"]).reshape(-1, *a["images"].shape[-4:])[:, 0]
+    other = np.asarray(b["images"]).reshape(-1, *b["images"].shape[-4:])[:, 0]
+    picked = np.linspace(0, len(first_sensor) - 1, rows).round().astype(int)
+    objects = np.asarray(a["objects"]).reshape(-1)
+    label = [str(o.decode() if isinstance(o, bytes) else o) for o in objects]
+    per_object = len(first_sensor) // len(label)
+    image = fidelity.montage([(f"{label[i // per_object]} #{i}", other[i], first_sensor[i]) for i in picked],
+                             background, names=names)
+    cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85])
 
 
 if __name__ == "__main__":

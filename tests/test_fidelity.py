@@ -45,6 +45,10 @@ def test_compare_and_montage():
     assert montage.shape == (2 * (64 + 20), 3 * 48, 3) and montage.dtype == np.uint8
     # the difference panel of identical images is flat grey
     assert np.all(montage[84 + 20 :, 96:] == 128)
+    # other names change the titles above the panels, not the panels
+    named = fidelity.montage([("a", reference, shifted), ("b", reference, reference)], background,
+                             names=("TACTO", "ours"))
+    assert np.array_equal(named[20:84], montage[20:84]) and not np.array_equal(named[:20], montage[:20])
 
 
 def _data_dir() -> Path:

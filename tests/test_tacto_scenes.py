@@ -148,6 +148,23 @@ def test_two_renderings_of_the_same_scenes_are_compared_pair_by_pair():
         compare_images.compare_sets(a, moved, background)
 
 
+
+def test_the_montage_shows_the_first_sensor_of_scenes_spread_over_the_set(tmp_path):
+    import cv2
+
+    background = np.full((320, 240, 3), 100, np.uint8)
+    pressed = np.stack([_pressed(background, (160, 120), 20 + 10 * i) for i in range(5)])
+    a = {"images": np.stack([pressed, pressed, pressed], axis=1), "objects": np.array([b"x"] * 5)}
+    b = {"images": a["images"].copy(), "objects": a["objects"]}
+    b["images"][4, 0] = background  # the last scene's first sensor: no press in the second set
+    compare_images.write_montage(tmp_path / "m.png", a, b, background, 3, ("TACTO", "ours"))
+    image = cv2.imread(str(tmp_path / "m.png"))
+    assert image.shape == (3 * (320 + 20), 3 * 240, 3)
+    # scenes 0, 2 and 4: the first two rows' difference panels flat grey, the last one's showing the press
+    differences = [image[r * 340 + 20 : (r + 1) * 340, 480:].astype(int) for r in range(3)]
+    assert [np.abs(d - 128).max() for d in differences][:2] == [0, 0] and np.abs(differences[2] - 128).max() > 50
+
+
 def test_a_sequence_set_is_written_under_its_own_name_attribute(tmp_path):
     datasets = {"images": np.zeros((1, 2, 3, 320, 240, 3), np.uint8), "fps": np.array(30.0)}
     attrs = {"schema": "sequences", "sequence_set": json.dumps("tracking")}

@@ -69,12 +69,13 @@ def imprint_view(image: np.ndarray, background: np.ndarray, gain: float = 4.0) -
     return np.clip(128.0 + gain * blurred_difference(image, background), 0, 255).astype(np.uint8)
 
 
-def montage(rows: list[tuple[str, np.ndarray, np.ndarray]], background: np.ndarray, gain: float = 4.0) -> np.ndarray:
+def montage(rows: list[tuple[str, np.ndarray, np.ndarray]], background: np.ndarray, gain: float = 4.0,
+            names: tuple[str, str] = ("paper", "ours")) -> np.ndarray:
     """Side-by-side panels, one row per (label, reference, simulated) -> (n x (H + 20), 3 x W, 3) uint8.
 
     Panels: reference imprint | simulated imprint | reference - simulated, each shown as 128 + gain x the
-    blurred difference, so grey means no difference. Labels are drawn above each row; the channel order
-    of the output is that of the inputs.
+    blurred difference, so grey means no difference. Labels are drawn above each row, the panels titled
+    by ``names`` (the reference's, the simulated's); the channel order of the output is that of the inputs.
     """
     bands = []
     for label, reference, simulated in rows:
@@ -84,7 +85,7 @@ def montage(rows: list[tuple[str, np.ndarray, np.ndarray]], background: np.ndarr
         row = np.concatenate([np.clip(128.0 + gain * p, 0, 255).astype(np.uint8) for p in panels], axis=1)
         header = np.full((20, row.shape[1], 3), 255, dtype=np.uint8)
         width = reference.shape[1]
-        for k, title in enumerate([f"{label}: paper", "ours", "paper - ours"]):
+        for k, title in enumerate([f"{label}: {names[0]}", names[1], f"{names[0]} - {names[1]}"]):
             cv2.putText(header, title, (4 + k * width, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
         bands.append(np.concatenate([header, row], axis=0))
     return np.concatenate(bands, axis=0)
