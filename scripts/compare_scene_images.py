@@ -7,8 +7,10 @@ Both files must hold the same scenes, or sequences (objects and poses; e.g. a se
 ``scripts/tacto_scenes.py``). Each sensor's two images are compared through their
 difference from the set's no-contact image (``tactile6d.evaluation.fidelity.compare``: IoU of the contact
 masks, correlation of the blurred differences); a pair in which neither image shows contact is left out of the
-IoU. Prints one JSON line: the median and 10th percentile of both over the pairs, and the share of pairs
-whose masks disagree on whether there is contact at all. ``--montage PATH`` also draws the first sensor of
+IoU. Prints one JSON line: the median and 10th percentile of both over the pairs, the share of pairs whose masks
+disagree on whether there is contact at all, and the median over the pairs with contact of how strong the second
+image's press is against the first's (the ratio of their mean absolute blurred differences over both masks:
+correlation and IoU alone would not see one renderer's light brighter than the other's). ``--montage PATH`` also draws the first sensor of
 ``--rows`` scenes spread over the set (``fidelity.montage``: the second file's imprint, the first's, their
 difference; ``--names`` titles them); nothing else is written.
 """
@@ -39,20 +41,25 @@ def compare_sets(a: dict, b: dict, background: np.ndarray) -> dict:
     for key in ("T_world_object", "T_world_sensors"):
         if not np.array_equal(np.asarray(a[key]), np.asarray(b[key])):
             raise SystemExit(f"the two sets are not the same scenes: their {key} differ")
-    ious, corrs, contact_disagrees = [], [], 0
+    ious, corrs, scales, contact_disagrees = [], [], [], 0
     for image_a, image_b in zip(np.asarray(a["images"]).reshape(-1, *a["images"].shape[-3:]),
                                 np.asarray(b["images"]).reshape(-1, *b["images"].shape[-3:])):
         pair = fidelity.compare(image_a, image_b, background)
-        touched = (fidelity.contact_mask(image_a, background).any(), fidelity.contact_mask(image_b, background).any())
-        contact_disagrees += touched[0] != touched[1]
-        if any(touched):
+        masks = fidelity.contact_mask(image_a, background), fidelity.contact_mask(image_b, background)
+        contact_disagrees += masks[0].any() != masks[1].any()
+        if masks[0].any() or masks[1].any():
             ious.append(pair["iou"])
+            both = masks[0] | masks[1]
+            strength_a = np.abs(fidelity.blurred_difference(image_a, background)[both]).mean()
+            strength_b = np.abs(fidelity.blurred_difference(image_b, background)[both]).mean()
+            scales.append(strength_b / strength_a)
         corrs.append(pair["corr"])
     ious, corrs = np.array(ious), np.array(corrs)
     return {"pairs": len(corrs), "iou_median": round(float(np.median(ious)), 3),
             "iou_p10": round(float(np.percentile(ious, 10)), 3), "corr_median": round(float(np.nanmedian(corrs)), 3),
             "corr_p10": round(float(np.nanpercentile(corrs, 10)), 3),
-            "contact_disagrees": round(contact_disagrees / len(corrs), 3)}
+            "contact_disagrees": round(contact_disagrees / len(corrs), 3),
+            "strength_ratio_median": round(float(np.median(scales)), 3)}
 
 
 def main() -> int:

@@ -143,6 +143,14 @@ def test_two_renderings_of_the_same_scenes_are_compared_pair_by_pair():
     # third untouched in both: left out of the IoU
     assert row["pairs"] == 3 and row["contact_disagrees"] == pytest.approx(1 / 3, abs=1e-3)
     assert row["iou_median"] == pytest.approx(0.5) and row["iou_p10"] == pytest.approx(0.1)
+    # the same press in both: as strong (1); a press against none: nothing (0); their median
+    assert row["strength_ratio_median"] == pytest.approx(0.5, abs=1e-6)
+    # a press twice as bright in the second set, the same masks: IoU 1 and correlation 1 do not see it, the ratio does
+    once = _pressed(background, (160, 120), 40)
+    twice = _pressed(once, (160, 120), 40)
+    row = compare_images.compare_sets(dict(a, images=np.stack([[once] * 3])), dict(b, images=np.stack([[twice] * 3])),
+                                      background)
+    assert row["corr_median"] == pytest.approx(1.0) and row["strength_ratio_median"] == pytest.approx(2.0, rel=1e-3)
     moved = dict(b, T_world_object=a["T_world_object"] + 1)
     with pytest.raises(SystemExit, match="T_world_object"):
         compare_images.compare_sets(a, moved, background)
