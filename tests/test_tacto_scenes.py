@@ -194,3 +194,20 @@ def test_a_deeper_press_moves_each_sensor_along_its_own_axis():
     assert np.allclose(local[..., :3, 3], [0.0015, 0.0, 0.0], atol=1e-12)
     assert np.array_equal(moved[..., :3, :3], T[..., :3, :3]) and not np.shares_memory(moved, T)
     assert np.allclose(tacto_scenes.pressed_further(moved, -0.0015), T, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_the_contact_patches_read_from_both_sets_are_compared():
+    from test_estimator import small_patch_model
+
+    background = np.full((320, 240, 3), 100, np.uint8)
+    poses = {"T_world_object": np.tile(np.eye(4), (1, 1, 1)), "T_world_sensors": np.tile(np.eye(4), (1, 3, 1, 1))}
+    here, there = _pressed(background, (160, 120), 40), _pressed(background, (200, 120), 40)
+    a = dict(poses, images=np.stack([[here, here, background]]))
+    b = dict(poses, images=np.stack([[here, there, background]]))
+    row = compare_images.compare_sets(a, b, background, small_patch_model())
+    # pairs with contact in both: the same press (0 apart) and one moved 40 pixels down the image (millimetres)
+    assert row["contact_point_mm_median"] > 0 and row["contact_point_mm_p90"] > 1.0
+    same = compare_images.compare_sets(a, a, background, small_patch_model())
+    assert same["contact_point_mm_p90"] == 0.0 and same["normal_deg_p90"] == 0.0
+    assert "contact_point_mm_median" not in compare_images.compare_sets(a, b, background)
