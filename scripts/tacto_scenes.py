@@ -11,7 +11,8 @@ For each scene of ``<artifacts>/scenes/<set>.h5`` (made by ``make_scenes``), or 
 sequences (``make_sequences``, rendered at the true sensor poses its images were made at), it places the object,
 without its texture, at its true pose and renders every sensor with TACTO's ``Renderer`` and its shipped DIGIT
 configuration (``digit/tacto/config_digit.yml`` of the data directory: lights, gel, camera, noise of 7 grey
-levels), over the no-contact image the set was rendered over (its config's ``render.background``), at 240 x 320.
+levels), over the no-contact image the set was rendered over (its config's ``render.background``; ``--background``
+another under the data directory), at 240 x 320 (``--size 120 160``: TACTO's own default, kept at that size).
 The object is not pushed by a force: the set's press (the gel 1-2 mm into the object) is TACTO's geometry as
 given (``--deeper MM`` first moves every sensor of a scene set that much further in, or out, along its axis).
 TACTO's noise is drawn from NumPy's global generator, seeded by ``--seed`` and the image's place, so a set is
@@ -41,7 +42,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-WIDTH, HEIGHT = 240, 320  # the DIGIT images' size, as the paper rendered them
+SIZE = (240, 320)  # width, height: the DIGIT images' size, as the paper rendered them (TACTO's default: 120, 160)
 
 
 def data_dir() -> Path:
@@ -65,16 +66,19 @@ def untextured(path: Path) -> trimesh.Trimesh:
     return trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
 
 
-def tacto_renderer(config: Path, background_file: Path):
-    """TACTO's ``Renderer`` for DIGIT images of 240 x 320 over that no-contact image (imported here: only the
-    TACTO environment has it)."""
+def tacto_renderer(config: Path, background_file: Path, size: tuple[int, int] = SIZE):
+    """TACTO's ``Renderer`` for DIGIT images of ``size`` (width, height) over that no-contact image, which TACTO
+    resizes to it (imported here: only the TACTO environment has it)."""
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # headless: Mesa's EGL, no display
     if not hasattr(np, "float"):
         np.float = float  # TACTO 0.0.3 still uses the alias NumPy 1.24 removed
     from tacto.renderer import Renderer
 
     # TACTO's examples read the no-contact image with OpenCV (BGR) and its Renderer turns it to RGB.
-    return Renderer(width=WIDTH, height=HEIGHT, background=cv2.imread(str(background_file)), config_path=str(config))
+    if not background_file.is_file():
+        raise SystemExit(f"no-contact image {background_file} not found")
+    return Renderer(width=size[0], height=size[1], background=cv2.imread(str(background_file)),
+                    config_path=str(config))
 
 
 def read_set(source: Path) -> tuple[dict, dict]:
@@ -109,21 +113,25 @@ def pressed_further(T_world_sensors: np.ndarray, distance: float) -> np.ndarray:
     return moved
 
 
-def render_set(source: Path, target: Path, data: Path, config: Path, seed: int, deeper: float = 0.0) -> dict:
+def render_set(source: Path, target: Path, data: Path, config: Path, seed: int, deeper: float = 0.0,
+               size: tuple[int, int] = SIZE, background: str | None = None) -> dict:
     """Render ``source``'s set with TACTO into ``target`` (module docstring); ``deeper`` (m): every sensor
-    pressed that much further than the set's press, its poses in the file moved alike (not for sequences)."""
+    pressed that much further than the set's press, its poses in the file moved alike (not for sequences);
+    size: the images' (width, height); background: the no-contact image under the data directory (default: the
+    one the set was rendered over)."""
     datasets, attrs = read_set(source)
     if deeper:
         if "T_world_sensors_true" in datasets:
             raise SystemExit("--deeper applies to scene sets, not to sequences")
         datasets["T_world_sensors"] = pressed_further(datasets["T_world_sensors"], deeper)
     scene_config = json.loads(attrs["config"])
-    renderer = tacto_renderer(config, data / scene_config["render"]["background"])
+    background = background or scene_config["render"]["background"]
+    renderer = tacto_renderer(config, data / background, size)
     objects = [o.decode() if isinstance(o, bytes) else str(o) for o in datasets["objects"]]
     meshes = {o: untextured(data / "ycb" / o / "textured_simple.obj") for o in sorted(set(objects))}
     T_objects, T_sensors, lead = rendered_poses(datasets)
     per_object = len(T_objects) // len(objects)  # a sequence's frames share its object
-    images = np.empty((len(T_objects),) + datasets["images"].shape[len(lead) - 1 :], np.uint8)
+    images = np.empty((len(T_objects), lead[-1], size[1], size[0], 3), np.uint8)
     start = time.time()
     for i, (T_object, T_frame) in enumerate(zip(T_objects, T_sensors)):
         renderer.add_object(meshes[objects[i // per_object]], "object", *euler_xyz(T_object))
@@ -136,9 +144,10 @@ def render_set(source: Path, target: Path, data: Path, config: Path, seed: int, 
         renderer.current_object_nodes.pop("object")
     seconds = time.time() - start
     note = {"tool": "tacto 0.0.3 Renderer", "config": str(config.relative_to(data)),
-            "background": scene_config["render"]["background"], "seed": seed,
+            "background": background, "seed": seed, "size": list(size),
             "object": "untextured mesh at the true pose, no force", "deeper_m": deeper}
-    name = write_images_as_set(datasets, attrs, images.reshape(datasets["images"].shape), target, "tacto", note)
+    images = images.reshape(lead + images.shape[2:])
+    name = write_images_as_set(datasets, attrs, images, target, "tacto", note)
     return {"set": name, "images": int(images.shape[0] * images.shape[1]), "seconds": round(seconds, 1),
             "file": str(target)}
 
@@ -146,9 +155,10 @@ def render_set(source: Path, target: Path, data: Path, config: Path, seed: int, 
 def write_images_as_set(datasets: dict, attrs: dict, images: np.ndarray, target: Path, suffix: str,
                         note: dict) -> str:
     """Write a scene or sequence set's datasets and attributes (as read from its file) to ``target`` with
-    ``images`` (..., L, 320, 240, 3) uint8 in place of its own, named ``<set>_<suffix>`` (attribute ``scene_set``
-    or ``sequence_set``), ``note`` in its ``renderer`` attribute. Returns the new set's name."""
-    if images.shape != datasets["images"].shape or images.dtype != np.uint8:
+    ``images`` (..., L, H, W, 3) uint8 in place of its own (the same scenes and sensors; another size than the
+    set's is passed on as it is, as a camera at that size gives it), named ``<set>_<suffix>`` (attribute
+    ``scene_set`` or ``sequence_set``), ``note`` in its ``renderer`` attribute. Returns the new set's name."""
+    if images.shape[:-3] != datasets["images"].shape[:-3] or images.shape[-1] != 3 or images.dtype != np.uint8:
         raise ValueError(f"images {images.shape} {images.dtype}, the set's are {datasets['images'].shape} uint8")
     attrs = dict(attrs)
     key = "scene_set" if "scene_set" in attrs else "sequence_set"
@@ -202,6 +212,10 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0, help="TACTO's camera noise")
     parser.add_argument("--deeper", type=float, default=0.0,
                         help="mm: every sensor of the scene sets pressed that much deeper (negative: shallower)")
+    parser.add_argument("--size", type=int, nargs=2, default=list(SIZE), metavar=("WIDTH", "HEIGHT"),
+                        help="the images' size (TACTO's own default: 120 160)")
+    parser.add_argument("--background", help="the no-contact image, under the data directory (default: the set's; "
+                                             "TACTO's example unit: digit/tacto/bg_digit_240_320.jpg)")
     args = parser.parse_args()
     data = data_dir()
     config = data / "digit" / "tacto" / "config_digit.yml"
@@ -211,12 +225,13 @@ def main() -> int:
     for scene_set in args.scenes:
         source = args.artifacts / "scenes" / f"{scene_set}.h5"
         print(json.dumps(render_set(source, args.out / "scenes" / f"{scene_set}_tacto.h5", data, config, args.seed,
-                                    args.deeper / 1000)))
+                                    args.deeper / 1000, tuple(args.size), args.background)))
     if args.sequences:
         # stage evaluate_tracking reads sequences/tracking.h5: the rendered set takes its place under --out
         target = args.out / "sequences" / "tracking.h5"
         target.unlink(missing_ok=True)  # the link to the pipeline's file
-        print(json.dumps(render_set(args.artifacts / "sequences" / "tracking.h5", target, data, config, args.seed)))
+        print(json.dumps(render_set(args.artifacts / "sequences" / "tracking.h5", target, data, config, args.seed,
+                                    size=tuple(args.size), background=args.background)))
     return 0
 
 

@@ -68,6 +68,10 @@ def test_the_set_written_reads_as_the_same_scenes_with_the_new_images(tmp_path):
         assert json.loads(f.attrs["renderer"]) == {"tool": "test"}
     with pytest.raises(ValueError, match="images"):
         tacto_scenes.write_images_as_set(datasets, attrs, new[:1], target, "tacto", {})
+    # at TACTO's own default size the images are kept as a camera of that size gives them
+    small = np.full((2, 3, 160, 120, 3), 9, np.uint8)
+    tacto_scenes.write_images_as_set(datasets, attrs, small, tmp_path / "small.h5", "tacto", {"size": [120, 160]})
+    assert np.array_equal(scene_set_from_artifact(read_artifact(tmp_path / "small.h5", "scenes")).images, small)
 
 
 @pytest.mark.parametrize("extra", ["pose_error_translation", "backgrounds"])
