@@ -148,7 +148,7 @@ def render_set(source: Path, target: Path, data: Path, config: Path, seed: int, 
             "object": "untextured mesh at the true pose, no force", "deeper_m": deeper}
     images = images.reshape(lead + images.shape[2:])
     name = write_images_as_set(datasets, attrs, images, target, "tacto", note)
-    return {"set": name, "images": int(images.shape[0] * images.shape[1]), "seconds": round(seconds, 1),
+    return {"set": name, "images": int(np.prod(images.shape[:-3])), "seconds": round(seconds, 1),
             "file": str(target)}
 
 
