@@ -11,8 +11,9 @@ For each scene of ``<artifacts>/scenes/<set>.h5`` (made by ``make_scenes``), or 
 sequences (``make_sequences``, rendered at the true sensor poses its images were made at), it places the object,
 without its texture, at its true pose and renders every sensor with TACTO's ``Renderer`` and its shipped DIGIT
 configuration (``digit/tacto/config_digit.yml`` of the data directory: lights, gel, camera, noise of 7 grey
-levels), over the no-contact image the set was rendered over (its config's ``render.background``; ``--background``
-another under the data directory), at 240 x 320 (``--size 120 160``: TACTO's own default, kept at that size).
+levels; ``--config config_digit_shadow.yml`` its variant with other lights, spot lights and shadows), over the
+no-contact image the set was rendered over (its config's ``render.background``; ``--background`` another under
+the data directory), at 240 x 320 (``--size 120 160``: TACTO's own default, kept at that size).
 The object is not pushed by a force: the set's press (the gel 1-2 mm into the object) is TACTO's geometry as
 given (``--deeper MM`` first moves every sensor of a scene set that much further in, or out, along its axis).
 TACTO's noise is drawn from NumPy's global generator, seeded by ``--seed`` and the image's place, so a set is
@@ -72,6 +73,8 @@ def tacto_renderer(config: Path, background_file: Path, size: tuple[int, int] = 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # headless: Mesa's EGL, no display
     if not hasattr(np, "float"):
         np.float = float  # TACTO 0.0.3 still uses the alias NumPy 1.24 removed
+    if not hasattr(np, "infty"):
+        np.infty = np.inf  # and pyrender 0.1.45's spot lights (config_digit_shadow.yml) the one NumPy 2 removed
     from tacto.renderer import Renderer
 
     # TACTO's examples read the no-contact image with OpenCV (BGR) and its Renderer turns it to RGB.
@@ -216,9 +219,14 @@ def main() -> int:
                         help="the images' size (TACTO's own default: 120 160)")
     parser.add_argument("--background", help="the no-contact image, under the data directory (default: the set's; "
                                              "TACTO's example unit: digit/tacto/bg_digit_240_320.jpg)")
+    parser.add_argument("--config", default="config_digit.yml",
+                        help="TACTO's sensor configuration, under the data directory's digit/tacto/ (its variant with "
+                             "spot lights and shadows: config_digit_shadow.yml)")
     args = parser.parse_args()
     data = data_dir()
-    config = data / "digit" / "tacto" / "config_digit.yml"
+    config = data / "digit" / "tacto" / args.config
+    if not config.is_file():
+        raise SystemExit(f"no TACTO configuration {config}")
     if args.out.resolve() == args.artifacts.resolve():
         raise SystemExit("--out must not be --artifacts: the pipeline's outputs are left as DVC made them")
     link_artifacts(args.artifacts, args.out)
