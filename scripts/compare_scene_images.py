@@ -5,7 +5,7 @@
 
 Both files must hold the same scenes, or sequences (objects and poses; e.g. a set and its rendering by TACTO,
 ``scripts/tacto_scenes.py``). Each sensor's two images are compared through their
-difference from the set's no-contact image (``tactile6d.evaluation.fidelity.compare``: IoU of the contact
+difference from the set's no-contact image (``tactile6d.evaluation.fidelity.compare_imprints``: IoU of the contact
 masks, correlation of the blurred differences); a pair in which neither image shows contact is left out of the
 IoU. Prints one JSON line: the median and 10th percentile of both over the pairs, the share of pairs whose masks
 disagree on whether there is contact at all, and the median over the pairs with contact of how strong the second
@@ -49,15 +49,11 @@ def compare_sets(a: dict, b: dict, background: np.ndarray, patch_model=None) -> 
     ious, corrs, scales, contact_disagrees, apart = [], [], [], 0, []
     for image_a, image_b in zip(np.asarray(a["images"]).reshape(-1, *a["images"].shape[-3:]),
                                 np.asarray(b["images"]).reshape(-1, *b["images"].shape[-3:])):
-        pair = fidelity.compare(image_a, image_b, background)
-        masks = fidelity.contact_mask(image_a, background), fidelity.contact_mask(image_b, background)
-        contact_disagrees += masks[0].any() != masks[1].any()
-        if masks[0].any() or masks[1].any():
+        pair = fidelity.compare_imprints(image_a, image_b, background)
+        contact_disagrees += pair["touched"][0] != pair["touched"][1]
+        if any(pair["touched"]):
             ious.append(pair["iou"])
-            both = masks[0] | masks[1]
-            strength_a = np.abs(fidelity.blurred_difference(image_a, background)[both]).mean()
-            strength_b = np.abs(fidelity.blurred_difference(image_b, background)[both]).mean()
-            scales.append(strength_b / strength_a)
+            scales.append(pair["strength"])
         corrs.append(pair["corr"])
         if patch_model is not None:
             patches = (contact_patch.image_to_patch(image_a, background, patch_model),
